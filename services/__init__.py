@@ -1,0 +1,1 @@
+"""The racestack services: planner, simulator, VESC driver, telemetry, localization bridge."""

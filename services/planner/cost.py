@@ -1,0 +1,58 @@
+"""The cost of CiMPCC and MPCC: J_MPCC (paper eq. 3) plus J_Ci (paper eq. 11).
+
+Per stage k with model input ``u_k = [v_l, delta, v_p]`` and velocity pair ``v_k = [v_l, v_p]``:
+
+    q_c e_con^2 + q_l e_lag^2                       contour and lag error (Q)
+    - gamma v_p,k Ts                                progress reward
+    + ||u_k - u_{k-1}||^2_R1                        input rate (stage 0: times w_du0)
+    + ||u_k - u_ref||^2_R2                          input reference (MPCC's speed pull)
+    + (1 - beta_k) ||v_k - v_low||^2_R3             CiMPCC: pull to safe speeds
+    + beta_k ||v_k - v_up||^2_R3                    CiMPCC: pull to aggressive speeds
+    + rho_1 slack_k + rho_2 slack_k^2               soft track limits
+
+MPCC is R3 = 0; CiMPCC is R2 = diag(0, 10, 0) with R3 = diag(40, 40) (paper section IV).
+All weights come from the parameter vector (see ``problem.ParamLayout``).
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+
+from services.planner.model import U
+
+
+def _quad(diff: ca.SX, weights: ca.SX) -> ca.SX:
+    """``||diff||^2_diag(weights)``."""
+    return ca.sum1(weights * diff**2)
+
+
+def stage_cost(
+    *,
+    e_con: ca.SX,
+    e_lag: ca.SX,
+    u: ca.SX,
+    u_prev: ca.SX,
+    slack: ca.SX,
+    beta: ca.SX,
+    par: dict[str, ca.SX],
+    dt_s: float,
+    first_stage: bool,
+) -> ca.SX:
+    """Cost of one stage (see the module docstring); `par` holds the named parameter blocks."""
+    q = par["q"]
+    cost = q[0] * e_con**2 + q[1] * e_lag**2
+    cost -= par["gamma"] * u[U.V_P] * dt_s
+    du = _quad(u - u_prev, par["r1"])
+    cost += par["w_du0"] * du if first_stage else du
+    cost += _quad(u - par["u_ref"], par["r2"])
+    v = ca.vertcat(u[U.V_L], u[U.V_P])
+    cost += (1 - beta) * _quad(v - par["v_low"], par["r3"])
+    cost += beta * _quad(v - par["v_up"], par["r3"])
+    cost += par["slack_w"][0] * slack + par["slack_w"][1] * slack**2
+    return cost
+
+
+def terminal_cost(e_con: ca.SX, e_lag: ca.SX, par: dict[str, ca.SX]) -> ca.SX:
+    """Contour and lag error of the last predicted state."""
+    q = par["q"]
+    return q[0] * e_con**2 + q[1] * e_lag**2

@@ -1,0 +1,267 @@
+"""The CiMPCC / MPCC planner: one solve per tick, warm started, never an unsafe command.
+
+``Planner.step(x, y, yaw)`` projects the car onto the track, sets beta (paper eq. 11: once at
+the car's position, or per predicted stage), solves the problem built once by
+``problem.build_problem`` and returns a ``SolveResult``. A failed solve falls back to the
+previous plan shifted by one step; ``max_consecutive_failures`` failures in a row give a
+braking command (speed 0). Commands are always finite and inside the input bounds.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.planner.model import NU, S, U
+from services.planner.problem import UA, XA, OcpProblem, build_problem
+from services.planner.solver import SolverHandle, make_solver
+from shared.config.planner import CurvatureSettings, MethodWeights, PlannerSettings
+from shared.curvature import CurvatureProfile, curvature_profile
+from shared.track import Track
+
+#: Status of a result: a fresh solution, the shifted previous plan, or a braking command.
+SOLVED, FALLBACK, BRAKING = "solved", "fallback", "braking"
+#: Speed [m/s] of the rollout that seeds the very first solve.
+INITIAL_GUESS_SPEED_MPS = 1.0
+
+
+@dataclass(frozen=True)
+class DriveCommand:
+    """What the planner commands: speed [m/s] and steering angle [rad]."""
+
+    speed_mps: float
+    steering_rad: float
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    """The record of one planner tick.
+
+    Attributes:
+        command: the drive command to apply now.
+        states: (N+1, 4) predicted model states [X, Y, phi, s] (s may exceed the lap length).
+        inputs: (N, 3) planned inputs [v_l, delta, v_p].
+        status: SOLVED, FALLBACK or BRAKING.
+        solver_status: the back-end's return status text.
+        iterations: solver iterations.
+        solve_time_s: wall time of the solver call [s].
+        beta: (N,) beta used at each stage.
+        s_m: the car's progress [m] in [0, lap length).
+        e_con_m: the car's contour error [m] (positive right of the centreline).
+        consecutive_failures: failed solves in a row, this one included.
+        method: "cimpcc" or "mpcc".
+    """
+
+    command: DriveCommand
+    states: np.ndarray
+    inputs: np.ndarray
+    status: str
+    solver_status: str
+    iterations: int
+    solve_time_s: float
+    beta: np.ndarray
+    s_m: float
+    e_con_m: float
+    consecutive_failures: int
+    method: str
+
+
+class Planner:
+    """One planner instance: problem and solver built once, per-tick solve with warm start."""
+
+    def __init__(
+        self,
+        track: Track,
+        settings: PlannerSettings,
+        curvature: CurvatureSettings | None = None,
+        *,
+        method: str | None = None,
+        weights: MethodWeights | None = None,
+        timer: Callable[[], float] = time.perf_counter,
+        problem: OcpProblem | None = None,
+        solver: SolverHandle | None = None,
+    ) -> None:
+        """Build (or reuse) the problem and solver.
+
+        Args:
+            track: the track to race.
+            settings: planner settings.
+            curvature: curvature-mapping settings (default: the paper's).
+            method: "cimpcc" or "mpcc" (default: settings.method).
+            weights: explicit weights (overrides the method's; e.g. a tuned MPCC).
+            timer: clock for solve-time measurement [s].
+            problem, solver: an already built pair to share between planners on one track.
+        """
+        self.track = track
+        self.settings = settings
+        self.method = method or settings.method
+        self.weights = weights or settings.weights(self.method)
+        curvature = curvature or CurvatureSettings()
+        self.profile: CurvatureProfile = curvature_profile(
+            track.xy, track.s_m, track.length_m, curvature.window_m, curvature.alpha
+        )
+        self.problem = problem or build_problem(track, settings)
+        self.solver = solver or make_solver(self.problem, settings.solver)
+        self._timer = timer
+        b = settings.bounds
+        self._u_lo = np.array([b.v_l_mps[0], b.delta_rad[0], b.v_p_mps[0]])
+        self._u_hi = np.array([b.v_l_mps[1], b.delta_rad[1], b.v_p_mps[1]])
+        self._slack_w = (settings.slack_weight_linear, settings.slack_weight_quadratic)
+        self.reset()
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self) -> None:
+        """Forget the previous plan (next step starts cold)."""
+        self._w_prev: np.ndarray | None = None
+        self._s_prev: float | None = None
+        self._u_applied = np.zeros(NU)
+        self._failures = 0
+
+    @property
+    def horizon(self) -> int:
+        """N."""
+        return self.problem.horizon
+
+    # ------------------------------------------------------------------ one tick
+    def step(self, x_m: float, y_m: float, yaw_rad: float) -> SolveResult:
+        """Plan from the car's pose (rear axle [m], yaw [rad]); see the module docstring."""
+        pr = self.problem
+        N = pr.horizon
+        L = self.track.length_m
+        if not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad)):
+            return self._failed(np.zeros(NU + 1), 0.0, 0.0, "non-finite pose", 0, 0.0, None)
+        s0, e0 = self.track.project(np.array([x_m, y_m]), s_hint=self._s_prev)
+        s0, e0 = float(s0), float(e0)
+        self._s_prev = s0
+        x0 = np.empty(len(XA))
+        x0[XA.X], x0[XA.Y], x0[XA.PHI], x0[XA.PROGRESS] = x_m, y_m, yaw_rad, s0
+        x0[XA.V_L_PREV : XA.V_P_PREV + 1] = self._u_applied
+
+        xs_ws, us_ws = self._warm_start(x0)
+        beta = self._beta(s0, xs_ws[:N, XA.PROGRESS])
+        w_du0 = 1.0 if self.settings.delta_u_on_applied else 0.0
+        p = pr.layout.pack(x0, beta, self.weights, w_du0, self._slack_w)
+
+        t0 = self._timer()
+        try:
+            sol = self.solver.solve(
+                x0=pr.pack(xs_ws, us_ws), p=p, lbx=pr.lbw, ubx=pr.ubw, lbg=pr.lbg, ubg=pr.ubg
+            )
+            stats = self.solver.solve.stats()
+            w = np.asarray(sol["x"], dtype=float).reshape(-1)
+            ok = bool(stats.get("success", False)) and bool(np.all(np.isfinite(w)))
+            status_text = str(stats.get("return_status", "unknown"))
+            iters = int(stats.get("iter_count", -1))
+        except RuntimeError as exc:  # CasADi raises on evaluation errors
+            w, ok, status_text, iters = None, False, f"error: {exc}", 0
+        solve_time = self._timer() - t0
+
+        if not ok:
+            return self._failed(x0, s0, e0, status_text, iters, solve_time, beta)
+        self._failures = 0
+        self._w_prev = w
+        xs, us = pr.unpack(w)
+        u0 = np.clip(us[0, :NU], self._u_lo, self._u_hi)
+        self._u_applied = u0
+        return SolveResult(
+            command=DriveCommand(float(u0[U.V_L]), float(u0[U.DELTA])),
+            states=xs[:, : len(S)].copy(),
+            inputs=us[:, :NU].copy(),
+            status=SOLVED,
+            solver_status=status_text,
+            iterations=iters,
+            solve_time_s=solve_time,
+            beta=np.asarray(beta, dtype=float).copy(),
+            s_m=s0,
+            e_con_m=e0,
+            consecutive_failures=0,
+            method=self.method,
+        )
+
+    # ------------------------------------------------------------------ helpers
+    def _beta(self, s0: float, s_pred: np.ndarray) -> np.ndarray:
+        """beta per stage (N,): all g(NSC(s0)) (paper) or g(NSC(s_k)) of the warm start."""
+        if self.settings.beta_mode == "per_stage":
+            return np.asarray(self.profile.beta_at(s_pred), dtype=float)
+        return np.full(self.horizon, float(self.profile.beta_at(s0)))
+
+    def _warm_start(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Previous solution shifted by one stage, aligned to x0 (s and phi unwrapped)."""
+        pr = self.problem
+        N = pr.horizon
+        L = self.track.length_m
+        if self._w_prev is None:
+            xs = np.empty((N + 1, len(XA)))
+            us = np.zeros((N, len(UA)))
+            us[:, UA.V_L] = INITIAL_GUESS_SPEED_MPS
+            us[:, UA.V_P] = INITIAL_GUESS_SPEED_MPS
+            xs[0] = x0
+            for k in range(N):
+                nxt = np.asarray(pr.step(xs[k, : len(S)], us[k, :NU])).reshape(-1)
+                xs[k + 1, : len(S)] = nxt
+                xs[k + 1, len(S) :] = us[k, :NU]
+            return xs, us
+        xs_prev, us_prev = pr.unpack(self._w_prev)
+        xs = np.vstack([xs_prev[1:], xs_prev[-1:]])
+        us = np.vstack([us_prev[1:], us_prev[-1:]])
+        # extrapolate the last stage with the model
+        xs[-1, : len(S)] = np.asarray(pr.step(xs[-2, : len(S)], us[-1, :NU])).reshape(-1)
+        xs[-1, len(S) :] = us[-1, :NU]
+        # align progress (laps) and heading (turns) with the measured state
+        xs[:, XA.PROGRESS] += L * round((x0[XA.PROGRESS] - xs[0, XA.PROGRESS]) / L)
+        xs[:, XA.PHI] += 2 * np.pi * round((x0[XA.PHI] - xs[0, XA.PHI]) / (2 * np.pi))
+        xs[0] = x0
+        us[:, UA.SLACK] = 0.0
+        return xs, us
+
+    def _failed(
+        self,
+        x0: np.ndarray,
+        s0: float,
+        e0: float,
+        status_text: str,
+        iters: int,
+        solve_time: float,
+        beta: np.ndarray | None,
+    ) -> SolveResult:
+        """Fallback to the shifted previous plan; brake after too many failures in a row."""
+        self._failures += 1
+        N = self.horizon
+        beta_arr = np.zeros(N) if beta is None else np.asarray(beta, dtype=float)
+        can_shift = self._w_prev is not None
+        if can_shift and self._failures < self.settings.max_consecutive_failures:
+            xs_prev, us_prev = self.problem.unpack(self._w_prev)
+            xs = np.vstack([xs_prev[1:], xs_prev[-1:]])
+            us = np.vstack([us_prev[1:], us_prev[-1:]])
+            self._w_prev = self.problem.pack(xs, us)
+            u0 = np.clip(us[0, :NU], self._u_lo, self._u_hi)
+            status = FALLBACK
+        else:
+            xs = np.tile(x0, (N + 1, 1)) if x0.size == len(XA) else np.zeros((N + 1, len(XA)))
+            us = np.zeros((N, len(UA)))
+            u0 = np.array([0.0, float(np.clip(self._u_applied[U.DELTA], *self._u_lo[[1]],
+                                               self._u_hi[1])), 0.0])
+            us[:, U.DELTA] = u0[U.DELTA]
+            self._w_prev = None
+            status = BRAKING
+        if not np.all(np.isfinite(u0)):
+            u0 = np.zeros(NU)
+        self._u_applied = u0
+        return SolveResult(
+            command=DriveCommand(float(u0[U.V_L]), float(u0[U.DELTA])),
+            states=np.asarray(xs[:, : len(S)], dtype=float),
+            inputs=np.asarray(us[:, :NU], dtype=float),
+            status=status,
+            solver_status=status_text,
+            iterations=iters,
+            solve_time_s=solve_time,
+            beta=beta_arr,
+            s_m=s0,
+            e_con_m=e0,
+            consecutive_failures=self._failures,
+            method=self.method,
+        )

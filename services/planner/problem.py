@@ -1,0 +1,300 @@
+"""The ONE problem builder of CiMPCC and MPCC (paper eq. 5 and 13), multiple shooting.
+
+Layout of the decision vector, stage by stage as fatrop's structure detection needs it::
+
+    w = [xa_0, ua_0, xa_1, ua_1, ..., xa_{N-1}, ua_{N-1}, xa_N]
+
+with the augmented OCP state ``xa = [X, Y, phi, s, v_l_prev, delta_prev, v_p_prev]`` (the model
+state plus the previous input, so the delta-u cost is stage-local) and the OCP input
+``ua = [v_l, delta, v_p, slack]`` (the model input plus the track-limit slack, >= 0).
+
+Constraints, in order: gap 0, the initial-state equality, path constraints of stage 0, then
+gap k and path constraints of stage k for k = 1..N-1. The path constraints keep the NEXT
+predicted position inside the track, softened by the slack of that stage:
+``-(w_left - margin) - slack <= e_con(F(xa_k, ua_k)) <= (w_right - margin) + slack``.
+
+Every weight, the current state and beta are parameters, so one built (and compiled)
+problem serves both methods and every retuning; only N, Ts, the integrator, L, the margin
+and the track are structural.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import casadi as ca
+import numpy as np
+
+from services.planner.cost import stage_cost, terminal_cost
+from services.planner.model import NU, NX, S, U, discretise, kinematic_bicycle
+from services.planner.reference import R, reference_lookup, track_errors
+from shared.config.planner import MethodWeights, PlannerSettings
+from shared.track import Track
+
+
+class XA(IntEnum):
+    """Index of each element of the augmented OCP state."""
+
+    X = S.X
+    Y = S.Y
+    PHI = S.PHI
+    PROGRESS = S.PROGRESS
+    V_L_PREV = NX + U.V_L
+    DELTA_PREV = NX + U.DELTA
+    V_P_PREV = NX + U.V_P
+
+
+class UA(IntEnum):
+    """Index of each element of the OCP input."""
+
+    V_L = U.V_L
+    DELTA = U.DELTA
+    V_P = U.V_P
+    SLACK = NU
+
+
+NXA = len(XA)
+NUA = len(UA)
+
+
+@dataclass(frozen=True)
+class ParamLayout:
+    """Named slices of the parameter vector ``p``."""
+
+    horizon: int
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        """Size of each named parameter block."""
+        return {
+            "x0": NXA,
+            "beta": self.horizon,
+            "q": 2,  # contour, lag
+            "gamma": 1,
+            "r1": NU,
+            "r2": NU,
+            "u_ref": NU,
+            "r3": 2,
+            "v_up": 2,
+            "v_low": 2,
+            "w_du0": 1,  # 1: weigh u_0 against the applied command, 0: paper (inside horizon)
+            "slack_w": 2,  # linear, quadratic
+        }
+
+    @property
+    def slices(self) -> dict[str, slice]:
+        """Slice of each named block in ``p``."""
+        out, i = {}, 0
+        for name, n in self.sizes.items():
+            out[name] = slice(i, i + n)
+            i += n
+        return out
+
+    @property
+    def size(self) -> int:
+        """Length of ``p``."""
+        return sum(self.sizes.values())
+
+    def split(self, p: ca.SX) -> dict[str, ca.SX]:
+        """Symbolic blocks of ``p`` by name."""
+        return {name: p[sl] for name, sl in self.slices.items()}
+
+    def pack(
+        self,
+        x0: np.ndarray,
+        beta: np.ndarray | float,
+        weights: MethodWeights,
+        w_du0: float,
+        slack_w: tuple[float, float],
+    ) -> np.ndarray:
+        """The numeric parameter vector for one solve."""
+        p = np.empty(self.size)
+        sl = self.slices
+        p[sl["x0"]] = x0
+        p[sl["beta"]] = beta
+        p[sl["q"]] = (weights.q_contour, weights.q_lag)
+        p[sl["gamma"]] = weights.gamma
+        p[sl["r1"]] = weights.r1_delta_u
+        p[sl["r2"]] = weights.r2_input
+        p[sl["u_ref"]] = weights.u_ref
+        p[sl["r3"]] = weights.r3_velocity
+        p[sl["v_up"]] = weights.v_up_mps
+        p[sl["v_low"]] = weights.v_low_mps
+        p[sl["w_du0"]] = w_du0
+        p[sl["slack_w"]] = slack_w
+        return p
+
+
+@dataclass(frozen=True)
+class OcpProblem:
+    """A built problem: the NLP, its bounds and how to read its solution.
+
+    Attributes:
+        nlp: ``{"x": w, "p": p, "f": cost, "g": constraints}`` (SX).
+        lbg, ubg: (ng,) constraint bounds.
+        lbw, ubw: (nw,) variable bounds (input boxes, slack >= 0; states free).
+        equality: (ng,) True for equality rows (fatrop's ``equality`` option).
+        layout: the parameter layout.
+        horizon: N.
+        dt_s: Ts [s].
+        step: discrete model step ``F(x[4], u[3]) -> x[4]``.
+        errors: ``errors(x[4]) -> [e_con, e_lag]`` against the reference.
+        signature: text that identifies the structure (for the compile cache key).
+    """
+
+    nlp: dict
+    lbg: np.ndarray
+    ubg: np.ndarray
+    lbw: np.ndarray
+    ubw: np.ndarray
+    equality: list[bool]
+    layout: ParamLayout
+    horizon: int
+    dt_s: float
+    step: ca.Function
+    errors: ca.Function
+    signature: str
+
+    @property
+    def n_w(self) -> int:
+        """Number of decision variables."""
+        return self.horizon * (NXA + NUA) + NXA
+
+    def state_index(self, k: int) -> slice:
+        """Slice of xa_k in w."""
+        i = k * (NXA + NUA)
+        return slice(i, i + NXA)
+
+    def input_index(self, k: int) -> slice:
+        """Slice of ua_k in w."""
+        i = k * (NXA + NUA) + NXA
+        return slice(i, i + NUA)
+
+    def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(states (N+1, 7), inputs (N, 4)) from a decision vector."""
+        w = np.asarray(w, dtype=float).reshape(-1)
+        xs = np.stack([w[self.state_index(k)] for k in range(self.horizon + 1)])
+        us = np.stack([w[self.input_index(k)] for k in range(self.horizon)])
+        return xs, us
+
+    def pack(self, xs: np.ndarray, us: np.ndarray) -> np.ndarray:
+        """Decision vector from (states (N+1, 7), inputs (N, 4))."""
+        w = np.empty(self.n_w)
+        for k in range(self.horizon):
+            w[self.state_index(k)] = xs[k]
+            w[self.input_index(k)] = us[k]
+        w[self.state_index(self.horizon)] = xs[self.horizon]
+        return w
+
+
+def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:
+    """Build the CiMPCC/MPCC NLP on `track` with the structure fixed by `settings`.
+
+    Args:
+        track: the track whose centreline is the reference (embedded as a bspline).
+        settings: planner settings (N, Ts, integrator, L, margin, bounds).
+    """
+    N = settings.horizon_steps
+    F = discretise(kinematic_bicycle(settings.wheelbase_m), settings.dt_s, settings.integrator)
+    ref = reference_lookup(track)
+    layout = ParamLayout(N)
+    p = ca.SX.sym("p", layout.size)
+    par = layout.split(p)
+    margin = settings.track_margin_m
+
+    xs = [ca.SX.sym(f"x{k}", NXA) for k in range(N + 1)]
+    us = [ca.SX.sym(f"u{k}", NUA) for k in range(N)]
+    w_parts, g, lbg, ubg, equality = [], [], [], [], []
+    cost = 0
+    for k in range(N):
+        xk, uk = xs[k], us[k]
+        w_parts += [xk, uk]
+        zeta, u_model = xk[: NX], uk[: NU]
+        zeta_next = F(zeta, u_model)
+        gap = xs[k + 1] - ca.vertcat(zeta_next, u_model)
+        g.append(gap)
+        lbg += [0.0] * NXA
+        ubg += [0.0] * NXA
+        equality += [True] * NXA
+        if k == 0:
+            g.append(xk - par["x0"])
+            lbg += [0.0] * NXA
+            ubg += [0.0] * NXA
+            equality += [True] * NXA
+        # path constraint: the next position inside the (pulled-in) boundaries, soft
+        ref_next = ref(zeta_next[S.PROGRESS])
+        e_con_next, _ = track_errors(ref_next, zeta_next[S.X], zeta_next[S.Y])
+        slack = uk[UA.SLACK]
+        g.append(ca.vertcat(
+            e_con_next + (ref_next[R.W_LEFT] - margin) + slack,
+            (ref_next[R.W_RIGHT] - margin) - e_con_next + slack,
+        ))
+        lbg += [0.0, 0.0]
+        ubg += [np.inf, np.inf]
+        equality += [False, False]
+        e_con, e_lag = track_errors(ref(xk[XA.PROGRESS]), xk[XA.X], xk[XA.Y])
+        cost += stage_cost(
+            e_con=e_con,
+            e_lag=e_lag,
+            u=uk[: NU],
+            u_prev=xk[XA.V_L_PREV : XA.V_P_PREV + 1],
+            slack=slack,
+            beta=par["beta"][k],
+            par=par,
+            dt_s=settings.dt_s,
+            first_stage=(k == 0),
+        )
+    w_parts.append(xs[N])
+    e_con_n, e_lag_n = track_errors(ref(xs[N][XA.PROGRESS]), xs[N][XA.X], xs[N][XA.Y])
+    cost += terminal_cost(e_con_n, e_lag_n, par)
+
+    lbw = np.full(N * (NXA + NUA) + NXA, -np.inf)
+    ubw = np.full_like(lbw, np.inf)
+    b = settings.bounds
+    for k in range(N):
+        i = k * (NXA + NUA) + NXA
+        lbw[i + UA.V_L], ubw[i + UA.V_L] = b.v_l_mps
+        lbw[i + UA.DELTA], ubw[i + UA.DELTA] = b.delta_rad
+        lbw[i + UA.V_P], ubw[i + UA.V_P] = b.v_p_mps
+        lbw[i + UA.SLACK] = 0.0
+
+    zeta = ca.SX.sym("zeta", NX)
+    e_c, e_l = track_errors(ref(zeta[S.PROGRESS]), zeta[S.X], zeta[S.Y])
+    errors = ca.Function("errors", [zeta], [ca.vertcat(e_c, e_l)])
+    signature = "|".join(
+        [
+            "cimpcc-ocp-v1",
+            f"N={N}",
+            f"dt={settings.dt_s!r}",
+            f"int={settings.integrator}",
+            f"L={settings.wheelbase_m!r}",
+            f"margin={margin!r}",
+            f"bounds={b.model_dump_json()}",
+            f"track={track_fingerprint(track)}",
+        ]
+    )
+    return OcpProblem(
+        nlp={"x": ca.vertcat(*w_parts), "p": p, "f": cost, "g": ca.vertcat(*g)},
+        lbg=np.asarray(lbg),
+        ubg=np.asarray(ubg),
+        lbw=lbw,
+        ubw=ubw,
+        equality=equality,
+        layout=layout,
+        horizon=N,
+        dt_s=settings.dt_s,
+        step=F,
+        errors=errors,
+        signature=signature,
+    )
+
+
+def track_fingerprint(track: Track) -> str:
+    """A short hash of the track's geometry (for cache keys)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for arr in (track.xy, track.w_right_m, track.w_left_m):
+        h.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+    return h.hexdigest()[:16]

@@ -1,0 +1,1 @@
+"""What every racestack service needs: configuration, track geometry, curvature, messages."""

@@ -1,0 +1,124 @@
+"""Settings of the track's curvature mapping and of the CiMPCC / MPCC planner.
+
+Defaults are the paper's (Table II and text; ``../shared/docs/cimpcc-notes.md``) unless a
+docstring says otherwise. Pairs and triples follow the input layout ``[v_l, delta, v_p]`` and
+the velocity pair ``v = [v_l, v_p]`` of the paper.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from shared.config.base import Section
+
+NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Speed = Annotated[float, Field(ge=-20.0, le=20.0, allow_inf_nan=False)]
+Triple = tuple[NonNeg, NonNeg, NonNeg]
+Pair = tuple[NonNeg, NonNeg]
+
+
+class CurvatureSettings(Section):
+    """Offline curvature -> reference velocity mapping (paper III-A to III-C)."""
+
+    window_m: float = Field(1.2, gt=0.0, le=20.0, description="moving-average window [m of arc]")
+    alpha: float = Field(5.0, gt=0.0, le=100.0, description="sensitivity of g(K)=exp(-alpha K^2)")
+
+
+class MethodWeights(Section):
+    """Weights and references of one method; CiMPCC and MPCC are two instances of this.
+
+    The cost (paper eq. 3 and 11), summed over the horizon:
+    ``||xi_k||_Q - gamma v_p,k Ts + ||du_k||_R1 + ||u_k - u_ref||_R2
+    + (1 - beta) ||v_k - v_low||_R3 + beta ||v_k - v_up||_R3``.
+    """
+
+    q_contour: NonNeg = 800.0
+    q_lag: NonNeg = 800.0
+    gamma: NonNeg = Field(40.0, description="progress reward per m/s of v_p per second")
+    r1_delta_u: Triple = (10.0, 3500.0, 0.0)
+    r2_input: Triple = (0.0, 10.0, 0.0)
+    u_ref: tuple[Speed, Annotated[float, Field(ge=-1.0, le=1.0)], Speed] = (0.0, 0.0, 0.0)
+    r3_velocity: Pair = (40.0, 40.0)
+    v_up_mps: tuple[Speed, Speed] = (4.18, 3.8)
+    v_low_mps: tuple[Speed, Speed] = (2.72, 2.47)
+
+
+#: The paper's CiMPCC: R2 = diag(0, 10, 0), R3 = diag(40, 40), v_up (4.18, 3.8), v_low 0.65 v_up.
+CIMPCC_WEIGHTS = MethodWeights()
+#: The paper's MPCC: u_ref = (3.3, 0, 3.0), R2 = diag(40, 10, 40), no curvature term.
+MPCC_WEIGHTS = MethodWeights(
+    r2_input=(40.0, 10.0, 40.0), u_ref=(3.3, 0.0, 3.0), r3_velocity=(0.0, 0.0)
+)
+
+
+class InputBounds(Section):
+    """Box bounds of the inputs (paper Table II)."""
+
+    v_l_mps: tuple[Speed, Speed] = (-10.0, 10.0)
+    delta_rad: tuple[float, float] = Field((-0.35, 0.35))
+    v_p_mps: tuple[Speed, Speed] = (-10.0, 10.0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> InputBounds:
+        for name in ("v_l_mps", "delta_rad", "v_p_mps"):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                raise ValueError(f"{name}: lower bound {lo} must be below upper bound {hi}")
+        if not (-1.2 <= self.delta_rad[0] and self.delta_rad[1] <= 1.2):
+            raise ValueError("delta_rad bounds must lie within [-1.2, 1.2] rad")
+        return self
+
+
+class SolverSettings(Section):
+    """The NLP solver back-end."""
+
+    backend: Literal["fatrop", "ipopt"] = "fatrop"
+    compile: bool = Field(True, description="compile problem functions with a C compiler")
+    compiler: str = Field("gcc", min_length=1, description="C compiler command")
+    cache_dir: str | None = Field(
+        None, description="compiled-problem cache; None = $RACESTACK_CACHE or ~/.cache/racestack"
+    )
+    max_iter: int = Field(100, ge=1, le=10000)
+    tol: float = Field(1e-4, gt=0.0, le=1.0)
+    mu_init: float = Field(1e-3, gt=0.0, le=1e3)
+
+
+class PlannerSettings(Section):
+    """The CiMPCC / MPCC planner: one problem, two weight sets."""
+
+    method: Literal["cimpcc", "mpcc"] = "cimpcc"
+    cimpcc: MethodWeights = CIMPCC_WEIGHTS
+    mpcc: MethodWeights = MPCC_WEIGHTS
+    horizon_steps: int = Field(10, ge=2, le=60, description="N_p = N_c")
+    dt_s: float = Field(
+        0.05, gt=0.0, le=0.5, description="model step Ts [s]; also the planner period"
+    )
+    integrator: Literal["rk4", "euler"] = "rk4"
+    wheelbase_m: float = Field(0.324, gt=0.05, le=2.0, description="L of the kinematic bicycle")
+    bounds: InputBounds = InputBounds()
+    beta_mode: Literal["current", "per_stage"] = Field(
+        "current",
+        description="'current': one beta at the car's s (paper); 'per_stage': NSC at each "
+        "predicted s of the previous plan",
+    )
+    track_margin_m: float = Field(
+        0.12, ge=0.0, le=1.0, description="boundaries pulled in by this much (authors' code)"
+    )
+    slack_weight_linear: NonNeg = Field(1.0e3, description="cost per m of boundary violation")
+    slack_weight_quadratic: NonNeg = Field(1.0e4, description="cost per m^2 of violation")
+    delta_u_on_applied: bool = Field(
+        False, description="also weigh u_0 - (last applied command) with R1 (paper: off)"
+    )
+    max_consecutive_failures: int = Field(
+        3, ge=1, le=100, description="failed solves in a row before the planner brakes"
+    )
+    solver: SolverSettings = SolverSettings()
+
+    def weights(self, method: str | None = None) -> MethodWeights:
+        """The weight set of `method` (default: the configured one)."""
+        name = method or self.method
+        if name not in ("cimpcc", "mpcc"):
+            raise ValueError(f"unknown method {name!r}")
+        return getattr(self, name)

@@ -1,0 +1,149 @@
+"""Curvature of the centreline mapped to a reference-velocity weight (paper section III).
+
+The offline part of CiMPCC:
+1. ``kappa``: curvature by the paper's finite differences (eq. kappa, III-A),
+2. ``smooth``: moving-average filter of odd window ``w`` points (MAF, III-B),
+3. ``normalise``: min-max normalisation to the normalised smooth curvature NSC in [0, 1] (III-B),
+4. ``beta_of``: the mapping ``g(K_n) = exp(-alpha * K_n^2)`` (III-C), the weight of the
+   upper-velocity pull in ``J_Ci`` (and ``1 - beta`` of the lower one).
+
+All functions are pure numpy over a CLOSED loop of points (indices wrap around).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def kappa(xy: np.ndarray) -> np.ndarray:
+    """Unsigned curvature [1/m] of a closed polyline by the paper's finite differences.
+
+    ``kappa_i = |dx_i * d2y_i - d2x_i * dy_i| / (dx_i^2 + dy_i^2)^(3/2)`` with the backward
+    differences ``dx_i = x_i - x_{i-1}``, ``d2x_i = dx_i - dx_{i-1}`` (paper eq. 6-7). The
+    stencil of the paper's ``kappa_i`` spans points i-2, i-1, i and so estimates the curvature
+    at point i-1; the result is shifted by one index so that element i belongs to point i.
+    Exact for uniformly sampled circles; for a uniformly sampled parameter curve it is the
+    curvature to second order in the spacing.
+
+    Args:
+        xy: (n, 2) points of a closed loop [m] (first point not repeated).
+
+    Returns:
+        (n,) curvature [1/m].
+    """
+    p = np.asarray(xy, dtype=float)
+    d = p - np.roll(p, 1, axis=0)  # dx_i, dy_i
+    d2 = d - np.roll(d, 1, axis=0)  # d2x_i, d2y_i
+    num = np.abs(d[:, 0] * d2[:, 1] - d2[:, 0] * d[:, 1])
+    den = np.power(d[:, 0] ** 2 + d[:, 1] ** 2, 1.5)
+    k_paper = num / np.maximum(den, 1e-300)
+    return np.roll(k_paper, -1)
+
+
+def window_points(window_m: float, spacing_m: float) -> int:
+    """The odd moving-average window [points] closest to `window_m` of arc at `spacing_m`."""
+    w = max(1, round(window_m / spacing_m))
+    return w if w % 2 == 1 else w + 1
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving average of odd width `window` over a periodic sequence (paper MAF).
+
+    ``K_i = (1/w) * sum_{m=i-(w-1)/2}^{i+(w-1)/2} kappa_m`` with indices wrapping around.
+    """
+    if window < 1 or window % 2 == 0:
+        raise ValueError(f"window must be a positive odd number of points, got {window}")
+    v = np.asarray(values, dtype=float)
+    n = v.size
+    if window >= n:
+        return np.full(n, v.mean())
+    half = (window - 1) // 2
+    padded = np.concatenate([v[-half:], v, v[:half]]) if half else v
+    c = np.concatenate([[0.0], np.cumsum(padded)])
+    return (c[window:] - c[:-window]) / window
+
+
+def normalise(values: np.ndarray) -> np.ndarray:
+    """Min-max normalisation to [0, 1]: ``(K - K_min) / (K_max - K_min)`` (paper eq. 9).
+
+    A constant input (a circle) has no spread: it maps to all zeros (a straight-like NSC).
+    """
+    v = np.asarray(values, dtype=float)
+    lo, hi = float(v.min()), float(v.max())
+    if hi - lo <= 1e-12 * max(1.0, abs(hi)):
+        return np.zeros_like(v)
+    return (v - lo) / (hi - lo)
+
+
+def beta_of(nsc: np.ndarray | float, alpha: float) -> np.ndarray | float:
+    """The paper's mapping ``g(K_n) = exp(-alpha * K_n^2)``, alpha > 0 (eq. 10).
+
+    g(0) = 1 (upper truncation coefficient, straights), g(1) = exp(-alpha) (lower one).
+    """
+    return np.exp(-alpha * np.square(nsc))
+
+
+@dataclass(frozen=True, eq=False)
+class CurvatureProfile:
+    """The offline CiMPCC curvature profile of a track, per centreline point.
+
+    Attributes:
+        s_m: (n,) arc length of each point [m].
+        kappa: (n,) raw curvature [1/m].
+        smoothed: (n,) moving-average curvature K [1/m].
+        nsc: (n,) normalised smooth curvature K_n in [0, 1].
+        beta: (n,) g(K_n) in [exp(-alpha), 1].
+        window: moving-average window [points].
+        alpha: mapping sensitivity.
+        length_m: lap length [m].
+    """
+
+    s_m: np.ndarray
+    kappa: np.ndarray
+    smoothed: np.ndarray
+    nsc: np.ndarray
+    beta: np.ndarray
+    window: int
+    alpha: float
+    length_m: float
+
+    def nsc_at(self, s: np.ndarray | float) -> np.ndarray:
+        """NSC at arc length(s) `s` [m] (periodic, linear interpolation)."""
+        s_cl = np.append(self.s_m, self.length_m)
+        return np.interp(np.mod(s, self.length_m), s_cl, np.append(self.nsc, self.nsc[0]))
+
+    def beta_at(self, s: np.ndarray | float) -> np.ndarray:
+        """beta = g(NSC(s)) at arc length(s) `s` [m]."""
+        return beta_of(self.nsc_at(s), self.alpha)
+
+
+def curvature_profile(
+    xy: np.ndarray, s_m: np.ndarray, length_m: float, window_m: float, alpha: float
+) -> CurvatureProfile:
+    """Build the CiMPCC curvature profile of a closed centreline (paper III-A to III-C).
+
+    Args:
+        xy: (n, 2) centreline points [m].
+        s_m: (n,) their arc lengths [m].
+        length_m: lap length [m].
+        window_m: moving-average window as arc length [m] (authors' code: 30 points ~ 1.2 m).
+        alpha: sensitivity of the mapping g (authors' code: 5).
+    """
+    if alpha <= 0:
+        raise ValueError(f"alpha must be > 0, got {alpha}")
+    k = kappa(xy)
+    w = window_points(window_m, length_m / len(k))
+    ks = smooth(k, w)
+    nsc = normalise(ks)
+    return CurvatureProfile(
+        s_m=np.asarray(s_m, dtype=float),
+        kappa=k,
+        smoothed=ks,
+        nsc=nsc,
+        beta=np.asarray(beta_of(nsc, alpha)),
+        window=w,
+        alpha=alpha,
+        length_m=float(length_m),
+    )

@@ -1,0 +1,261 @@
+"""A closed race track: arc-length parametrised centreline, widths, boundaries, projection.
+
+Conventions used everywhere in racestack:
+- Points are in metres in the map frame; the centreline is a closed loop given by its unique
+  points (the first point is NOT repeated at the end); the driving direction is the point order.
+- `s` is arc length along the centreline in metres, periodic with period `length_m`.
+- `e_con` is the contour error of the paper's MPCC (Liniger et al.), with `phi_ref` the tangent
+  heading at the projection: `e_con = sin(phi_ref)(x - x_ref) - cos(phi_ref)(y - y_ref)`,
+  i.e. POSITIVE TO THE RIGHT of the centreline (seen in the driving direction). The car is
+  inside the track when `-w_left(s) <= e_con <= w_right(s)`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from shared.track.errors import TrackError
+
+#: Fewest centreline points a track may have.
+MIN_POINTS = 10
+#: A loop is open when its closing gap exceeds this multiple of the median point spacing.
+MAX_CLOSING_GAP_FACTOR = 4.0
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """A validated closed track.
+
+    Attributes:
+        name: short name (file stem or built-in name).
+        xy: (n, 2) centreline points [m], unique, in driving order.
+        w_right_m: (n,) distance from centreline to the right boundary [m], > 0.
+        w_left_m: (n,) distance from centreline to the left boundary [m], > 0.
+        source: where the track came from (a path or ``builtin:NAME``), for messages.
+    """
+
+    name: str
+    xy: np.ndarray
+    w_right_m: np.ndarray
+    w_left_m: np.ndarray
+    source: str = "<memory>"
+    s_m: np.ndarray = field(init=False, repr=False)
+    length_m: float = field(init=False)
+    heading_rad: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        xy = np.ascontiguousarray(self.xy, dtype=float)
+        w_r = np.ascontiguousarray(self.w_right_m, dtype=float).reshape(-1)
+        w_l = np.ascontiguousarray(self.w_left_m, dtype=float).reshape(-1)
+        validate_loop(xy, w_r, w_l, self.source)
+        seg = np.roll(xy, -1, axis=0) - xy
+        seg_len = np.hypot(seg[:, 0], seg[:, 1])
+        s = np.concatenate([[0.0], np.cumsum(seg_len)[:-1]])
+        for name, value in (
+            ("xy", xy),
+            ("w_right_m", w_r),
+            ("w_left_m", w_l),
+            ("s_m", s),
+            ("length_m", float(seg_len.sum())),
+            ("heading_rad", np.arctan2(seg[:, 1], seg[:, 0])),
+        ):
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+            object.__setattr__(self, name, value)
+
+    # ------------------------------------------------------------------ basic geometry
+    @property
+    def n_points(self) -> int:
+        """Number of unique centreline points."""
+        return int(self.xy.shape[0])
+
+    @property
+    def spacing_m(self) -> float:
+        """Mean spacing between centreline points [m]."""
+        return self.length_m / self.n_points
+
+    def wrap_s(self, s: np.ndarray | float) -> np.ndarray | float:
+        """Arc length wrapped into [0, length_m)."""
+        return np.mod(s, self.length_m)
+
+    def tangent_unit(self) -> np.ndarray:
+        """(n, 2) unit tangents at the points (central difference, periodic)."""
+        d = np.roll(self.xy, -1, axis=0) - np.roll(self.xy, 1, axis=0)
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    def left_normal_unit(self) -> np.ndarray:
+        """(n, 2) unit normals pointing to the left of the driving direction."""
+        t = self.tangent_unit()
+        return np.stack([-t[:, 1], t[:, 0]], axis=1)
+
+    @property
+    def left_boundary(self) -> np.ndarray:
+        """(n, 2) left boundary points [m]."""
+        return self.xy + self.w_left_m[:, None] * self.left_normal_unit()
+
+    @property
+    def right_boundary(self) -> np.ndarray:
+        """(n, 2) right boundary points [m]."""
+        return self.xy - self.w_right_m[:, None] * self.left_normal_unit()
+
+    def signed_curvature(self) -> np.ndarray:
+        """(n,) signed curvature [1/m], positive for left turns (central differences on s)."""
+        h = self.heading_rad
+        dh = np.angle(np.exp(1j * (h - np.roll(h, 1))))  # heading change at each point
+        seg = np.hypot(*(np.roll(self.xy, -1, axis=0) - self.xy).T)
+        ds = 0.5 * (seg + np.roll(seg, 1))
+        return dh / ds
+
+    def closed_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(s, x, y, phi) with the first point repeated at s = length_m and phi unwrapped."""
+        s = np.append(self.s_m, self.length_m)
+        x = np.append(self.xy[:, 0], self.xy[0, 0])
+        y = np.append(self.xy[:, 1], self.xy[0, 1])
+        phi = np.unwrap(np.append(self.heading_rad, self.heading_rad[0]))
+        return s, x, y, phi
+
+    def interp_width(self, s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """(w_right, w_left) [m] linearly interpolated at arc length(s) `s` (wrapped)."""
+        s_cl, *_ = self.closed_arrays()
+        sw = np.mod(s, self.length_m)
+        w_r = np.interp(sw, s_cl, np.append(self.w_right_m, self.w_right_m[0]))
+        w_l = np.interp(sw, s_cl, np.append(self.w_left_m, self.w_left_m[0]))
+        return w_r, w_l
+
+    def point_at(self, s: np.ndarray | float) -> np.ndarray:
+        """Centreline point(s) [m] at arc length `s` (piecewise linear), shape (..., 2)."""
+        s_cl, x, y, _ = self.closed_arrays()
+        sw = np.mod(s, self.length_m)
+        return np.stack([np.interp(sw, s_cl, x), np.interp(sw, s_cl, y)], axis=-1)
+
+    def heading_at(self, s: np.ndarray | float) -> np.ndarray:
+        """Tangent heading [rad] of the segment containing arc length `s`."""
+        idx = np.searchsorted(self.s_m, np.mod(s, self.length_m), side="right") - 1
+        return self.heading_rad[np.clip(idx, 0, self.n_points - 1)]
+
+    # ------------------------------------------------------------------ projection
+    def project(
+        self, points: np.ndarray, s_hint: float | None = None, window_m: float = 5.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Project points to the centreline polyline.
+
+        Args:
+            points: (2,) or (m, 2) positions [m].
+            s_hint: optional arc length [m] near which to search (for speed and to pick the
+                right branch where the track folds back on itself); None searches all.
+            window_m: half-width of the search window around `s_hint` [m].
+
+        Returns:
+            (s, e_con): arc length [m] in [0, length) and contour error [m] (positive right),
+            arrays of shape () for one point or (m,) for many.
+        """
+        p = np.asarray(points, dtype=float)
+        single = p.ndim == 1
+        p = np.atleast_2d(p)
+        a = self.xy
+        b = np.roll(self.xy, -1, axis=0)
+        if s_hint is not None and 2 * window_m < self.length_m:
+            ds = np.mod(self.s_m - s_hint + 0.5 * self.length_m, self.length_m)
+            ds -= 0.5 * self.length_m
+            idx = np.flatnonzero(np.abs(ds) <= window_m)
+            if idx.size == 0:
+                idx = np.arange(self.n_points)
+        else:
+            idx = np.arange(self.n_points)
+        a = a[idx]
+        b = b[idx]
+        ab = b - a
+        ab2 = np.einsum("ij,ij->i", ab, ab)
+        s_out = np.empty(p.shape[0])
+        e_out = np.empty(p.shape[0])
+        for chunk in range(0, p.shape[0], 256):
+            q = p[chunk : chunk + 256]
+            ap = q[:, None, :] - a[None, :, :]
+            t = np.clip(np.einsum("mij,ij->mi", ap, ab) / ab2, 0.0, 1.0)
+            closest = a[None] + t[..., None] * ab[None]
+            d2 = np.sum((q[:, None, :] - closest) ** 2, axis=2)
+            k = np.argmin(d2, axis=1)
+            rows = np.arange(q.shape[0])
+            seg = idx[k]
+            tk = t[rows, k]
+            s_out[chunk : chunk + 256] = np.mod(
+                self.s_m[seg] + tk * np.sqrt(ab2[k]), self.length_m
+            )
+            d = q - closest[rows, k]
+            h = self.heading_rad[seg]
+            e_out[chunk : chunk + 256] = np.sin(h) * d[:, 0] - np.cos(h) * d[:, 1]
+        if single:
+            return s_out[0], e_out[0]
+        return s_out, e_out
+
+    def is_inside(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+        """Whether points [m] lie within the boundaries shrunk by `margin_m` [m]."""
+        s, e = self.project(points)
+        w_r, w_l = self.interp_width(s)
+        return (e <= w_r - margin_m) & (e >= -(w_l - margin_m))
+
+
+def validate_loop(xy: np.ndarray, w_right: np.ndarray, w_left: np.ndarray, source: str) -> None:
+    """Raise TrackError naming `source` if the centreline is not a valid closed loop.
+
+    Checks: shape (n, 2) with n >= MIN_POINTS, finite values, positive widths of matching length,
+    no repeated consecutive points, closed (closing gap small against the spacing), no
+    self-crossing of the centreline.
+    """
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise TrackError(source, f"centreline must have shape (n, 2), got {xy.shape}")
+    n = xy.shape[0]
+    if n < MIN_POINTS:
+        raise TrackError(source, f"only {n} centreline points; at least {MIN_POINTS} are needed")
+    if not np.all(np.isfinite(xy)):
+        bad = int(np.flatnonzero(~np.isfinite(xy).all(axis=1))[0])
+        raise TrackError(source, f"non-finite coordinate (NaN or inf) at point {bad}")
+    for label, w in (("right", w_right), ("left", w_left)):
+        if w.shape != (n,):
+            raise TrackError(source, f"{label} width has {w.size} values for {n} points")
+        if not np.all(np.isfinite(w)):
+            raise TrackError(source, f"non-finite {label} width at point {int(np.argmax(~np.isfinite(w)))}")
+        if np.any(w <= 0.0):
+            raise TrackError(
+                source, f"zero or negative {label} width at point {int(np.argmax(w <= 0.0))}"
+            )
+    seg = np.hypot(*np.diff(xy, axis=0).T)
+    if np.any(seg <= 1e-9):
+        raise TrackError(source, f"repeated point at index {int(np.argmax(seg <= 1e-9)) + 1}")
+    gap = float(np.hypot(*(xy[0] - xy[-1])))
+    median = float(np.median(seg))
+    if gap > MAX_CLOSING_GAP_FACTOR * median:
+        raise TrackError(
+            source,
+            f"open loop: the last point is {gap:.3f} m from the first "
+            f"(median spacing {median:.3f} m)",
+        )
+    crossing = find_self_crossing(xy)
+    if crossing is not None:
+        i, j = crossing
+        raise TrackError(source, f"self-crossing loop: segment {i} crosses segment {j}")
+
+
+def find_self_crossing(xy: np.ndarray) -> tuple[int, int] | None:
+    """First pair (i, j) of non-adjacent closed-polyline segments that properly cross, or None."""
+    a = xy
+    b = np.roll(xy, -1, axis=0)
+    n = xy.shape[0]
+    d = b - a
+    for i in range(n - 2):
+        j = np.arange(i + 2, n if i > 0 else n - 1)
+        if j.size == 0:
+            continue
+        # orientation tests of segment i against segments j and vice versa
+        r = d[i]
+        cross_ac = r[0] * (a[j, 1] - a[i, 1]) - r[1] * (a[j, 0] - a[i, 0])
+        cross_bc = r[0] * (b[j, 1] - a[i, 1]) - r[1] * (b[j, 0] - a[i, 0])
+        dj = d[j]
+        cross_ca = dj[:, 0] * (a[i, 1] - a[j, 1]) - dj[:, 1] * (a[i, 0] - a[j, 0])
+        cross_da = dj[:, 0] * (b[i, 1] - a[j, 1]) - dj[:, 1] * (b[i, 0] - a[j, 0])
+        hit = (cross_ac * cross_bc < 0) & (cross_ca * cross_da < 0)
+        if np.any(hit):
+            return i, int(j[np.argmax(hit)])
+    return None

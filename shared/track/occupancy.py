@@ -1,0 +1,129 @@
+"""ROS map_server occupancy maps (yaml + PGM/PNG image) as a grid, for lidar and drawing."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from shared.track.errors import TrackError
+
+#: Cell values of OccupancyGrid.cells.
+FREE, OCCUPIED, UNKNOWN = 0, 100, -1
+
+
+@dataclass(frozen=True, eq=False)
+class OccupancyGrid:
+    """An occupancy grid in the map frame.
+
+    Attributes:
+        cells: (rows, cols) int8, row 0 at the BOTTOM (y = origin y), FREE / OCCUPIED / UNKNOWN.
+        resolution_m: cell edge [m].
+        origin_xy_m: (2,) map-frame position of the lower-left corner of cell (0, 0) [m].
+        origin_yaw_rad: map rotation [rad] (ROS maps almost always use 0).
+        source: the yaml path.
+    """
+
+    cells: np.ndarray
+    resolution_m: float
+    origin_xy_m: np.ndarray
+    origin_yaw_rad: float = 0.0
+    source: str = "<memory>"
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols)."""
+        return tuple(self.cells.shape)  # type: ignore[return-value]
+
+    def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
+        """(..., 2) map-frame points [m] -> (..., 2) integer (row, col) indices (may be outside)."""
+        p = np.asarray(xy, dtype=float) - self.origin_xy_m
+        if self.origin_yaw_rad:
+            c, s = np.cos(-self.origin_yaw_rad), np.sin(-self.origin_yaw_rad)
+            p = np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], -1)
+        col = np.floor(p[..., 0] / self.resolution_m).astype(int)
+        row = np.floor(p[..., 1] / self.resolution_m).astype(int)
+        return np.stack([row, col], axis=-1)
+
+    def occupied_at(self, xy: np.ndarray) -> np.ndarray:
+        """Whether each point [m] is in an occupied cell; outside the map counts as occupied."""
+        rc = self.world_to_cell(xy)
+        rows, cols = self.shape
+        inside = (rc[..., 0] >= 0) & (rc[..., 0] < rows) & (rc[..., 1] >= 0) & (rc[..., 1] < cols)
+        out = np.ones(rc.shape[:-1], dtype=bool)
+        r = np.clip(rc[..., 0], 0, rows - 1)
+        c = np.clip(rc[..., 1], 0, cols - 1)
+        out[inside] = self.cells[r[inside], c[inside]] == OCCUPIED
+        return out
+
+
+def load_ros_map(yaml_path: str | Path) -> OccupancyGrid:
+    """Load a ROS map_server map: the yaml (image, resolution, origin, negate, thresholds).
+
+    The image (PGM or PNG, top row first) is read with Pillow and flipped so that row 0 is the
+    bottom row. Occupancy probability of a pixel value v (0..255) is ``(255 - v) / 255``
+    (``v / 255`` when ``negate`` is 1); above ``occupied_thresh`` is occupied, below
+    ``free_thresh`` is free, anything else unknown.
+    """
+    import yaml
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(yaml_path)
+    try:
+        meta = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise TrackError(str(path), f"cannot read map yaml ({exc})") from exc
+    if not isinstance(meta, dict):
+        raise TrackError(str(path), "map yaml is not a mapping")
+    for key in ("image", "resolution", "origin"):
+        if key not in meta:
+            raise TrackError(str(path), f"map yaml has no '{key}'")
+    try:
+        resolution = float(meta["resolution"])
+        origin = [float(v) for v in meta["origin"]]
+        occ_t = float(meta.get("occupied_thresh", 0.65))
+        free_t = float(meta.get("free_thresh", 0.196))
+        negate = int(meta.get("negate", 0))
+    except (TypeError, ValueError) as exc:
+        raise TrackError(str(path), f"bad map yaml value ({exc})") from exc
+    if not (resolution > 0 and np.isfinite(resolution)) or len(origin) != 3:
+        raise TrackError(str(path), "resolution must be > 0 and origin must be [x, y, yaw]")
+    image_path = path.parent / str(meta["image"])
+    try:
+        with Image.open(image_path) as img:
+            pixels = np.asarray(img.convert("L"), dtype=float)
+    except (OSError, UnidentifiedImageError) as exc:
+        raise TrackError(str(image_path), f"cannot read map image ({exc})") from exc
+    p = pixels / 255.0 if negate else (255.0 - pixels) / 255.0
+    cells = np.full(p.shape, UNKNOWN, dtype=np.int8)
+    cells[p > occ_t] = OCCUPIED
+    cells[p < free_t] = FREE
+    cells = np.ascontiguousarray(cells[::-1])
+    cells.setflags(write=False)
+    return OccupancyGrid(
+        cells=cells,
+        resolution_m=resolution,
+        origin_xy_m=np.array(origin[:2]),
+        origin_yaw_rad=origin[2],
+        source=str(path),
+    )
+
+
+def rasterize_track(track, resolution_m: float = 0.05, margin_m: float = 1.0) -> OccupancyGrid:
+    """An occupancy grid made from a track's boundaries: free inside, occupied outside.
+
+    For tracks that come without a map (the built-in ones). `track` is a shared.track.Track.
+    """
+    lo = np.minimum(track.left_boundary.min(0), track.right_boundary.min(0)) - margin_m
+    hi = np.maximum(track.left_boundary.max(0), track.right_boundary.max(0)) + margin_m
+    cols = int(np.ceil((hi[0] - lo[0]) / resolution_m))
+    rows = int(np.ceil((hi[1] - lo[1]) / resolution_m))
+    cx = lo[0] + (np.arange(cols) + 0.5) * resolution_m
+    cy = lo[1] + (np.arange(rows) + 0.5) * resolution_m
+    gx, gy = np.meshgrid(cx, cy)
+    inside = track.is_inside(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(rows, cols)
+    cells = np.where(inside, FREE, OCCUPIED).astype(np.int8)
+    cells.setflags(write=False)
+    return OccupancyGrid(cells=cells, resolution_m=resolution_m, origin_xy_m=lo,
+                         source=f"{track.source} (rasterised)")
