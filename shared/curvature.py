@@ -24,8 +24,8 @@ def kappa(xy: np.ndarray) -> np.ndarray:
     differences ``dx_i = x_i - x_{i-1}``, ``d2x_i = dx_i - dx_{i-1}`` (paper eq. 6-7). The
     stencil of the paper's ``kappa_i`` spans points i-2, i-1, i and so estimates the curvature
     at point i-1; the result is shifted by one index so that element i belongs to point i.
-    Exact for uniformly sampled circles; for a uniformly sampled parameter curve it is the
-    curvature to second order in the spacing.
+    Exact for uniformly sampled circles; for other uniformly sampled curves the error is first
+    order in the spacing (the first difference sits half a step from the second one).
 
     Args:
         xy: (n, 2) points of a closed loop [m] (first point not repeated).

@@ -131,7 +131,6 @@ class Planner:
         """Plan from the car's pose (rear axle [m], yaw [rad]); see the module docstring."""
         pr = self.problem
         N = pr.horizon
-        L = self.track.length_m
         if not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad)):
             return self._failed(np.zeros(NU + 1), 0.0, 0.0, "non-finite pose", 0, 0.0, None)
         s0, e0 = self.track.project(np.array([x_m, y_m]), s_hint=self._s_prev)
@@ -243,8 +242,13 @@ class Planner:
         else:
             xs = np.tile(x0, (N + 1, 1)) if x0.size == len(XA) else np.zeros((N + 1, len(XA)))
             us = np.zeros((N, len(UA)))
-            u0 = np.array([0.0, float(np.clip(self._u_applied[U.DELTA], *self._u_lo[[1]],
-                                               self._u_hi[1])), 0.0])
+            u0 = np.array(
+                [
+                    0.0,
+                    float(np.clip(self._u_applied[U.DELTA], *self._u_lo[[1]], self._u_hi[1])),
+                    0.0,
+                ]
+            )
             us[:, U.DELTA] = u0[U.DELTA]
             self._w_prev = None
             status = BRAKING

@@ -210,7 +210,7 @@ def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:
     for k in range(N):
         xk, uk = xs[k], us[k]
         w_parts += [xk, uk]
-        zeta, u_model = xk[: NX], uk[: NU]
+        zeta, u_model = xk[:NX], uk[:NU]
         zeta_next = F(zeta, u_model)
         gap = xs[k + 1] - ca.vertcat(zeta_next, u_model)
         g.append(gap)
@@ -226,10 +226,12 @@ def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:
         ref_next = ref(zeta_next[S.PROGRESS])
         e_con_next, _ = track_errors(ref_next, zeta_next[S.X], zeta_next[S.Y])
         slack = uk[UA.SLACK]
-        g.append(ca.vertcat(
-            e_con_next + (ref_next[R.W_LEFT] - margin) + slack,
-            (ref_next[R.W_RIGHT] - margin) - e_con_next + slack,
-        ))
+        g.append(
+            ca.vertcat(
+                e_con_next + (ref_next[R.W_LEFT] - margin) + slack,
+                (ref_next[R.W_RIGHT] - margin) - e_con_next + slack,
+            )
+        )
         lbg += [0.0, 0.0]
         ubg += [np.inf, np.inf]
         equality += [False, False]
@@ -237,7 +239,7 @@ def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:
         cost += stage_cost(
             e_con=e_con,
             e_lag=e_lag,
-            u=uk[: NU],
+            u=uk[:NU],
             u_prev=xk[XA.V_L_PREV : XA.V_P_PREV + 1],
             slack=slack,
             beta=par["beta"][k],

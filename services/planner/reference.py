@@ -41,7 +41,9 @@ def reference_table(track: Track) -> tuple[np.ndarray, np.ndarray]:
     tiles_s, tiles_v = [], []
     for k in (-1, 0, 1):
         tiles_s.append(s[base] + k * L)
-        tiles_v.append(np.column_stack([x[base], y[base], phi[base] + k * turn, w_r[base], w_l[base]]))
+        tiles_v.append(
+            np.column_stack([x[base], y[base], phi[base] + k * turn, w_r[base], w_l[base]])
+        )
     tiles_s.append([2 * L])
     tiles_v.append([[x[0], y[0], phi[0] + 2 * turn, w_r[0], w_l[0]]])
     return np.concatenate(tiles_s), np.vstack(tiles_v)

@@ -105,8 +105,16 @@ def _compile(problem: OcpProblem, settings: SolverSettings, target: Path) -> Non
             os.chdir(cwd)
         tmp_so = Path(tmp) / "nlp.so"
         subprocess.run(
-            [settings.compiler, "-O2", "-fPIC", "-shared", str(Path(tmp) / "nlp.c"), "-o",
-             str(tmp_so), "-lm"],
+            [
+                settings.compiler,
+                "-O2",
+                "-fPIC",
+                "-shared",
+                str(Path(tmp) / "nlp.c"),
+                "-o",
+                str(tmp_so),
+                "-lm",
+            ],
             check=True,
             capture_output=True,
             timeout=300,

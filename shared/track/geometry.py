@@ -180,9 +180,7 @@ class Track:
             rows = np.arange(q.shape[0])
             seg = idx[k]
             tk = t[rows, k]
-            s_out[chunk : chunk + 256] = np.mod(
-                self.s_m[seg] + tk * np.sqrt(ab2[k]), self.length_m
-            )
+            s_out[chunk : chunk + 256] = np.mod(self.s_m[seg] + tk * np.sqrt(ab2[k]), self.length_m)
             d = q - closest[rows, k]
             h = self.heading_rad[seg]
             e_out[chunk : chunk + 256] = np.sin(h) * d[:, 0] - np.cos(h) * d[:, 1]
@@ -216,7 +214,9 @@ def validate_loop(xy: np.ndarray, w_right: np.ndarray, w_left: np.ndarray, sourc
         if w.shape != (n,):
             raise TrackError(source, f"{label} width has {w.size} values for {n} points")
         if not np.all(np.isfinite(w)):
-            raise TrackError(source, f"non-finite {label} width at point {int(np.argmax(~np.isfinite(w)))}")
+            raise TrackError(
+                source, f"non-finite {label} width at point {int(np.argmax(~np.isfinite(w)))}"
+            )
         if np.any(w <= 0.0):
             raise TrackError(
                 source, f"zero or negative {label} width at point {int(np.argmax(w <= 0.0))}"
@@ -255,7 +255,9 @@ def find_self_crossing(xy: np.ndarray) -> tuple[int, int] | None:
         dj = d[j]
         cross_ca = dj[:, 0] * (a[i, 1] - a[j, 1]) - dj[:, 1] * (a[i, 0] - a[j, 0])
         cross_da = dj[:, 0] * (b[i, 1] - a[j, 1]) - dj[:, 1] * (b[i, 0] - a[j, 0])
-        hit = (cross_ac * cross_bc < 0) & (cross_ca * cross_da < 0)
+        # proper crossings and touching at a vertex; collinear runs (a straight) are not hits
+        collinear = (cross_ac == 0) & (cross_bc == 0)
+        hit = (cross_ac * cross_bc <= 0) & (cross_ca * cross_da <= 0) & ~collinear
         if np.any(hit):
             return i, int(j[np.argmax(hit)])
     return None

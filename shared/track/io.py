@@ -39,9 +39,7 @@ def _read_numeric_rows(path: Path, delimiter: str, ncols: int) -> np.ndarray:
             continue
         parts = [p.strip() for p in stripped.split(delimiter)]
         if len(parts) != ncols:
-            raise TrackError(
-                str(path), f"line {lineno} has {len(parts)} columns, expected {ncols}"
-            )
+            raise TrackError(str(path), f"line {lineno} has {len(parts)} columns, expected {ncols}")
         try:
             rows.append([float(p) for p in parts])
         except ValueError as exc:

@@ -125,5 +125,9 @@ def rasterize_track(track, resolution_m: float = 0.05, margin_m: float = 1.0) ->
     inside = track.is_inside(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(rows, cols)
     cells = np.where(inside, FREE, OCCUPIED).astype(np.int8)
     cells.setflags(write=False)
-    return OccupancyGrid(cells=cells, resolution_m=resolution_m, origin_xy_m=lo,
-                         source=f"{track.source} (rasterised)")
+    return OccupancyGrid(
+        cells=cells,
+        resolution_m=resolution_m,
+        origin_xy_m=lo,
+        source=f"{track.source} (rasterised)",
+    )

@@ -1,0 +1,102 @@
+"""Solve-time benchmark of the planner over a closed loop (issue 2's figure).
+
+Closes the planner with its own kinematic model (RK4 at the planner's step) for `--steps`
+ticks and prints the solver-call wall time: median, p95, p99, max, plus the success rate,
+laps driven and the largest contour error. Run from the project root:
+
+    .venv/bin/python -m benchmarks.solve_time --track ../shared/tracks/map416 --steps 2000
+
+Targets on the 2-core machines for N = 10: median <= 1 ms, p99 <= 2 ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from services.planner.model import discretise, kinematic_bicycle, step_numpy
+from services.planner.planner import SOLVED, Planner
+from shared.config.planner import PlannerSettings, SolverSettings
+from shared.track import TrackError, load_track
+
+
+def run(
+    track_spec: str, steps: int, method: str, compile_: bool, backend: str, beta_mode: str
+) -> dict:
+    """Run the closed loop; return the figures (times in ms)."""
+    track = load_track(track_spec)
+    settings = PlannerSettings(
+        method=method,
+        beta_mode=beta_mode,
+        solver=SolverSettings(compile=compile_, backend=backend),
+    )
+    t0 = time.perf_counter()
+    planner = Planner(track, settings)
+    setup_s = time.perf_counter() - t0
+    F = discretise(kinematic_bicycle(settings.wheelbase_m), settings.dt_s, settings.integrator)
+    x = np.array([*track.xy[0], track.heading_rad[0], 0.0])
+    times, solved, max_e, progress, s_last = [], 0, 0.0, 0.0, 0.0
+    L = track.length_m
+    for _ in range(steps):
+        res = planner.step(*x[:3])
+        times.append(res.solve_time_s * 1e3)
+        solved += res.status == SOLVED
+        max_e = max(max_e, abs(res.e_con_m))
+        progress += (res.s_m - s_last + L / 2) % L - L / 2
+        s_last = res.s_m
+        x = step_numpy(F, x, np.array([res.command.speed_mps, res.command.steering_rad, 0.0]))
+    t = np.asarray(times)
+    return {
+        "track": track.name,
+        "method": method,
+        "steps": steps,
+        "compiled": planner.solver.compiled,
+        "cache_hit": planner.solver.cache_hit,
+        "setup_s": setup_s,
+        "median_ms": float(np.median(t)),
+        "p95_ms": float(np.percentile(t, 95)),
+        "p99_ms": float(np.percentile(t, 99)),
+        "max_ms": float(t.max()),
+        "success": solved / steps,
+        "laps": progress / L,
+        "max_abs_e_con_m": max_e,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line entry point."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--track", default="../shared/tracks/map416")
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--method", choices=["cimpcc", "mpcc"], default="cimpcc")
+    ap.add_argument("--backend", choices=["fatrop", "ipopt"], default="fatrop")
+    ap.add_argument("--beta-mode", choices=["current", "per_stage"], default="current")
+    ap.add_argument("--no-compile", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        r = run(
+            args.track, args.steps, args.method, not args.no_compile, args.backend, args.beta_mode
+        )
+    except TrackError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"track {r['track']}  method {r['method']}  backend {args.backend}  "
+        f"compiled {r['compiled']} (cache hit {r['cache_hit']}, set-up {r['setup_s']:.2f} s)"
+    )
+    print(
+        f"{r['steps']} closed-loop steps, {r['laps']:.1f} laps, success {100 * r['success']:.1f} %,"
+        f" max |e_con| {r['max_abs_e_con_m']:.3f} m"
+    )
+    print(
+        f"solve time [ms]: median {r['median_ms']:.3f}  p95 {r['p95_ms']:.3f}  "
+        f"p99 {r['p99_ms']:.3f}  max {r['max_ms']:.3f}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

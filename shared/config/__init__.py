@@ -1,0 +1,13 @@
+"""The one typed, validated configuration of racestack (see ``root.RacestackConfig``)."""
+
+from shared.config.base import ConfigError, Section
+from shared.config.root import RacestackConfig, TrackSettings, config_from_dict, load_config
+
+__all__ = [
+    "ConfigError",
+    "RacestackConfig",
+    "Section",
+    "TrackSettings",
+    "config_from_dict",
+    "load_config",
+]

@@ -1,0 +1,245 @@
+"""Track geometry, loaders, bad files and the built-in tracks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shared.curvature import curvature_profile
+from shared.track import BUILTIN_TRACKS, Track, TrackError, load_ros_map, load_track
+from shared.track.builtin_design import DESIGNS, render_csv, sample_design
+from shared.track.io import load_waypoint_triple
+from shared.track.occupancy import FREE, OCCUPIED, rasterize_track
+
+
+def circle_track(radius: float = 5.0, n: int = 500, width: float = 0.6) -> Track:
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    xy = radius * np.column_stack([np.cos(t), np.sin(t)])  # counter-clockwise
+    return Track("circle", xy, np.full(n, width), np.full(n, width))
+
+
+def write_csv(path: Path, rows: np.ndarray, header: str = "# x_m, y_m, w_tr_right_m, w_tr_left_m"):
+    lines = [header] + [", ".join(f"{v:.6f}" for v in r) for r in rows]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def circle_rows(n: int = 50, radius: float = 5.0) -> np.ndarray:
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.column_stack(
+        [radius * np.cos(t), radius * np.sin(t), np.full(n, 0.5), np.full(n, 0.5)]
+    )
+
+
+# ---------------------------------------------------------------- geometry
+def test_arc_length_and_periodic_s() -> None:
+    tr = circle_track(5.0, 2000)
+    assert tr.length_m == pytest.approx(2 * np.pi * 5.0, rel=1e-5)
+    assert tr.wrap_s(tr.length_m + 1.0) == pytest.approx(1.0)
+    assert tr.wrap_s(-1.0) == pytest.approx(tr.length_m - 1.0)
+
+
+def test_projection_gives_s_and_signed_contour_error() -> None:
+    tr = circle_track(5.0, 2000)
+    # counter-clockwise circle: the centre (left) is inside, outside is to the right
+    s, e = tr.project(np.array([5.3, 0.0]))
+    assert s == pytest.approx(0.0, abs=1e-3) or s == pytest.approx(tr.length_m, abs=1e-3)
+    assert e == pytest.approx(0.3, abs=1e-3)
+    s, e = tr.project(np.array([0.0, 4.8]))
+    assert s == pytest.approx(np.pi / 2 * 5.0, abs=2e-3)
+    assert e == pytest.approx(-0.2, abs=1e-3)
+    s_many, e_many = tr.project(np.array([[5.3, 0.0], [0.0, 4.8]]))
+    assert e_many.shape == (2,)
+    s_hint, _ = tr.project(np.array([0.0, 4.8]), s_hint=7.0, window_m=2.0)
+    assert s_hint == pytest.approx(s_many[1], abs=1e-9)
+
+
+def test_boundaries_and_inside() -> None:
+    tr = circle_track(5.0, 1000, width=0.6)
+    r_left = np.hypot(*tr.left_boundary.T)
+    r_right = np.hypot(*tr.right_boundary.T)
+    np.testing.assert_allclose(r_left, 4.4, atol=1e-6)
+    np.testing.assert_allclose(r_right, 5.6, atol=1e-6)
+    assert tr.is_inside(np.array([[5.5, 0.0], [4.5, 0.0]])).all()
+    assert not tr.is_inside(np.array([[5.7, 0.0], [4.3, 0.0]])).any()
+
+
+def test_signed_curvature_of_circle() -> None:
+    tr = circle_track(4.0, 800)
+    np.testing.assert_allclose(tr.signed_curvature(), 0.25, rtol=1e-3)
+
+
+# ---------------------------------------------------------------- loaders
+def test_f1tenth_centreline_roundtrip(tmp_path: Path) -> None:
+    path = write_csv(tmp_path / "Ring_centerline.csv", circle_rows())
+    tr = load_track(path)
+    assert tr.name == "Ring" and tr.n_points == 50
+    assert tr.w_left_m[0] == 0.5
+    assert load_track(tmp_path).n_points == 50  # the folder form
+
+
+def test_waypoint_triple(tmp_path: Path) -> None:
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    c = np.column_stack([5 * np.cos(t), 5 * np.sin(t)])
+    left = c * (4.4 / 5.0)  # CCW: inside is left
+    right = c * (5.7 / 5.0)
+    for name, arr in (("centerline", c), ("left", left), ("right", right)):
+        closed = np.vstack([arr, arr[:1]])  # files repeat the first point
+        np.savetxt(tmp_path / f"ring_track_{name}_waypoints.csv", closed, delimiter=",")
+    tr = load_track(tmp_path)
+    assert tr.n_points == 40
+    np.testing.assert_allclose(tr.w_left_m, 0.6, atol=0.02)
+    np.testing.assert_allclose(tr.w_right_m, 0.7, atol=0.02)
+    with pytest.raises(TrackError, match="right of the driving direction"):
+        load_waypoint_triple(
+            tmp_path / "ring_track_centerline_waypoints.csv",
+            tmp_path / "ring_track_right_waypoints.csv",
+            tmp_path / "ring_track_left_waypoints.csv",
+        )
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (lambda r: r[:, :3], "missing column(s) w_tr_left_m"),
+        (lambda r: np.where(np.arange(r.size).reshape(r.shape) == 21, np.nan, r), "NaN"),
+        (lambda r: r[:8], "at least 10"),
+        (lambda r: r[:40], "open loop"),
+        (
+            lambda r: np.column_stack([r[:, :2], np.zeros(len(r)), r[:, 3]]),
+            "zero or negative right width",
+        ),
+    ],
+    ids=["missing-column", "nan", "too-few-points", "open-loop", "zero-width"],
+)
+def test_bad_track_files_fail_with_one_clear_error(tmp_path: Path, mutate, message) -> None:
+    rows = mutate(circle_rows())
+    header = (
+        "# x_m, y_m, w_tr_right_m"
+        if rows.shape[1] == 3
+        else "# x_m, y_m, w_tr_right_m, w_tr_left_m"
+    )
+    path = write_csv(tmp_path / "bad_centerline.csv", rows, header)
+    with pytest.raises(TrackError) as info:
+        load_track(path)
+    text = str(info.value)
+    assert str(path) in text
+    assert message in text
+
+
+def test_self_crossing_loop_is_rejected(tmp_path: Path) -> None:
+    t = np.linspace(0, 2 * np.pi, 80, endpoint=False)
+    figure_eight = np.column_stack(
+        [5 * np.sin(t + 0.02), 3 * np.sin(2 * t + 0.04), np.full(80, 0.4), np.full(80, 0.4)]
+    )
+    path = write_csv(tmp_path / "eight_centerline.csv", figure_eight)
+    with pytest.raises(TrackError, match="self-crossing"):
+        load_track(path)
+
+
+def test_missing_and_unknown_specs(tmp_path: Path) -> None:
+    with pytest.raises(TrackError, match="not a built-in"):
+        load_track("no_such_track")
+    with pytest.raises(TrackError, match="unknown built-in"):
+        load_track("builtin:nope")
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(TrackError, match="unsupported"):
+        load_track(tmp_path / "notes.txt")
+    with pytest.raises(TrackError, match="no \\*_centerline"):
+        load_track(tmp_path)
+    garbage = tmp_path / "junk_centerline.csv"
+    garbage.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(TrackError, match=str(garbage.name)):
+        load_track(garbage)
+
+
+# ---------------------------------------------------------------- built-in tracks
+def test_builtin_files_match_their_design() -> None:
+    for name, design in DESIGNS.items():
+        shipped = (
+            Path(__file__).resolve().parents[2] / "shared/track/builtin" / f"{name}_centerline.csv"
+        )
+        assert shipped.read_text() == render_csv(sample_design(design)), name
+
+
+def test_paperlike_track_is_like_the_papers() -> None:
+    tr = load_track("builtin:paperlike")
+    assert 30.0 <= tr.length_m <= 60.0
+    np.testing.assert_allclose(tr.w_left_m + tr.w_right_m, 1.2)
+    prof = curvature_profile(tr.xy, tr.s_m, tr.length_m, 1.2, 5.0)
+    sharp = prof.kappa > 1.0 / 1.2  # radius under 1.2 m
+    # count separate sharp turns (runs of sharp points, periodic)
+    starts = np.sum(sharp & ~np.roll(sharp, 1))
+    assert starts >= 4
+    # straights between them
+    assert np.sum(prof.kappa < 1e-6) * tr.spacing_m > 10.0
+
+
+def test_gentle_track_is_gentler() -> None:
+    gentle = load_track("gentle")
+    paper = load_track("paperlike")
+    assert np.abs(gentle.signed_curvature()).max() < 0.5 * np.abs(paper.signed_curvature()).max()
+    assert set(BUILTIN_TRACKS) == {"paperlike", "gentle"}
+
+
+def test_rasterised_track_is_free_inside() -> None:
+    tr = load_track("gentle")
+    grid = rasterize_track(tr, resolution_m=0.1)
+    assert not grid.occupied_at(tr.xy[::50]).any()
+    outside = tr.xy[::50] - 1.5 * tr.left_normal_unit()[::50]
+    assert grid.occupied_at(outside).all()
+    assert set(np.unique(grid.cells)) <= {FREE, OCCUPIED}
+
+
+# ---------------------------------------------------------------- real data in ../shared
+def test_map416_both_formats_agree(shared_tracks: Path) -> None:
+    triple = load_track(shared_tracks / "map416")
+    f1 = load_track(shared_tracks / "map416" / "map416_centerline.csv")
+    assert triple.length_m == pytest.approx(32.77, abs=0.05)
+    assert f1.length_m == pytest.approx(triple.length_m, abs=0.05)
+    np.testing.assert_allclose(triple.w_left_m + triple.w_right_m, 1.2, atol=0.01)
+    prof = curvature_profile(triple.xy, triple.s_m, triple.length_m, 1.2, 5.0)
+    assert 1.0 / prof.smoothed.max() == pytest.approx(0.9, abs=0.08)
+    # clockwise: the total turn is -2 pi
+    _, _, _, phi = triple.closed_arrays()
+    assert phi[-1] - phi[0] == pytest.approx(-2 * np.pi, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    "name", ["Spielberg", "Monza", "Silverstone", "Austin", "Oschersleben", "YasMarina"]
+)
+def test_f1tenth_tracks_load(shared_tracks: Path, name: str) -> None:
+    tr = load_track(shared_tracks / "f1tenth" / name)
+    expected = {
+        "Spielberg": 343,
+        "Monza": 446,
+        "Silverstone": 458,
+        "Austin": 421,
+        "Oschersleben": 261,
+        "YasMarina": 398,
+    }
+    assert tr.length_m == pytest.approx(expected[name], rel=0.02)
+    np.testing.assert_allclose(tr.w_left_m + tr.w_right_m, 2.2, atol=0.01)
+
+
+def test_ros_map_loads_as_occupancy_grid(shared_tracks: Path) -> None:
+    grid = load_ros_map(shared_tracks / "map416" / "map416.yaml")
+    assert grid.shape == (422, 381)
+    assert grid.resolution_m == 0.05
+    tr = load_track(shared_tracks / "map416")
+    # the centreline runs through free space of the real map
+    assert np.mean(grid.occupied_at(tr.xy)) < 0.02
+    png = load_ros_map(shared_tracks / "f1tenth" / "Monza" / "Monza_map.yaml")
+    monza = load_track(shared_tracks / "f1tenth" / "Monza")
+    assert np.mean(png.occupied_at(monza.xy)) < 0.02
+
+
+def test_bad_map_yaml(tmp_path: Path) -> None:
+    (tmp_path / "m.yaml").write_text("image: missing.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    with pytest.raises(TrackError, match=r"missing\.pgm"):
+        load_ros_map(tmp_path / "m.yaml")
+    (tmp_path / "n.yaml").write_text("resolution: 0.05\n")
+    with pytest.raises(TrackError, match="no 'image'"):
+        load_ros_map(tmp_path / "n.yaml")
