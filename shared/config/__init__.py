@@ -1,9 +1,11 @@
 """The one typed, validated configuration of racestack (see ``root.RacestackConfig``)."""
 
 from shared.config.base import ConfigError, Section
+from shared.config.bus import BusSettings
 from shared.config.root import RacestackConfig, TrackSettings, config_from_dict, load_config
 
 __all__ = [
+    "BusSettings",
     "ConfigError",
     "RacestackConfig",
     "Section",

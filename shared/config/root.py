@@ -15,6 +15,7 @@ from typing import Any
 from pydantic import Field, ValidationError
 
 from shared.config.base import ConfigError, Section
+from shared.config.bus import BusSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
 
 
@@ -30,6 +31,7 @@ class RacestackConfig(Section):
     track: TrackSettings = TrackSettings()
     curvature: CurvatureSettings = CurvatureSettings()
     planner: PlannerSettings = PlannerSettings()
+    bus: BusSettings = BusSettings()
 
 
 def _format_errors(source: str, exc: ValidationError) -> str:

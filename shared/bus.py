@@ -1,0 +1,618 @@
+"""Zenoh helpers for the service shells (the only shared module that imports zenoh).
+
+A service shell opens one ``Bus`` for its lifetime, declares typed publishers and
+subscriptions, and runs its own loop; the maths never sees Zenoh or raw bytes::
+
+    with Bus(cfg.bus, "planner") as bus:              # closes the session, always
+        cmd_pub = bus.publisher(bus.keys.drive_cmd, DriveCmd)
+        state = bus.subscribe(bus.keys.state, State)  # latest-value slot
+        bus.wait_alive(["simulator"], timeout_s=10.0)
+        while running:
+            s = state.wait(timeout_s=0.1)              # newest State not yet taken, or None
+            if s is not None:
+                cmd_pub.put(DriveCmd(stamp_s=s.stamp_s, speed_mps=..., steering_rad=...))
+
+Rules this module enforces (see ``/work/shared/docs/zenoh-rerun-notes.md``):
+
+* Multicast scouting is off, endpoints are explicit (``shared.config.bus``).
+* Reliable message types (commands, events) are published with ``CongestionControl.BLOCK``,
+  high-rate data with ``DROP`` (``Message.RELIABLE``; overridable per publisher).
+* Subscriber callbacks run on a Zenoh thread: they decode, validate and hand the record
+  to a thread-safe latest-value slot and/or a bounded queue that drops the oldest. Invalid
+  payloads are dropped and counted per key and reason (``DropCounter``), logged once per
+  burst; no exception ever escapes into Zenoh's thread.
+* ``Bus.close`` (and ``__exit__``) always closes the session: a process with a callback
+  subscriber never exits while its session is open.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+from typing import Any, Generic, TypeVar
+
+import zenoh
+
+from shared.config.bus import BusSettings, Mode
+from shared.keys import Keys, check_chunk
+from shared.messages import Message, MessageError, decode, decode_any
+
+log = logging.getLogger("racestack.bus")
+
+M = TypeVar("M", bound=Message)
+T = TypeVar("T")
+
+#: The Zenoh encoding of every racestack payload.
+MSGPACK_ENCODING = "application/msgpack"
+#: Default interval between two summary log lines of one (key, reason) burst [s].
+DROP_SUMMARY_INTERVAL_S = 5.0
+#: Poll period of the matching / liveliness waits [s].
+_POLL_S = 0.005
+
+
+# --------------------------------------------------------------------------- drop counting
+class DropCounter:
+    """Thread-safe count of dropped payloads per (key, reason), with rate-limited logging.
+
+    The first drop of a (key, reason) pair is logged at once; later ones are summed and
+    logged as one summary line at most every ``summary_interval_s`` seconds (when the
+    next drop arrives after the interval, or on ``flush``).
+    """
+
+    def __init__(
+        self,
+        *,
+        summary_interval_s: float = DROP_SUMMARY_INTERVAL_S,
+        logger: logging.Logger | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._interval = summary_interval_s
+        self._log = logger or log
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._counts: collections.Counter[tuple[str, str]] = collections.Counter()
+        # (key, reason) -> [time of the last log line, drops since then, latest detail]
+        self._pending: dict[tuple[str, str], list[Any]] = {}
+
+    def record(self, key: str, reason: str, detail: str = "") -> None:
+        """Count one dropped payload on `key` for `reason` (and maybe log it)."""
+        now = self._clock()
+        line: tuple[str, tuple[Any, ...]] | None = None
+        with self._lock:
+            kr = (key, reason)
+            self._counts[kr] += 1
+            state = self._pending.get(kr)
+            if state is None:
+                self._pending[kr] = [now, 0, detail]
+                line = (
+                    "dropped a message on %s: %s (%s); more of these are summarised "
+                    "at most every %.0f s",
+                    (key, reason, detail, self._interval),
+                )
+            else:
+                state[1] += 1
+                state[2] = detail
+                if now - state[0] >= self._interval:
+                    line = self._summary(kr, state, now)
+        if line is not None:
+            self._log.warning(line[0], *line[1])
+
+    @staticmethod
+    def _summary(kr: tuple[str, str], state: list[Any], now: float) -> tuple[str, tuple[Any, ...]]:
+        text = "dropped %d more messages on %s: %s in the last %.1f s (latest: %s)"
+        args = (state[1], kr[0], kr[1], now - state[0], state[2])
+        state[0], state[1] = now, 0
+        return text, args
+
+    def flush(self) -> None:
+        """Log the summary of every burst not yet reported (call at shutdown)."""
+        now = self._clock()
+        with self._lock:
+            lines = [self._summary(kr, st, now) for kr, st in self._pending.items() if st[1]]
+        for text, args in lines:
+            self._log.warning(text, *args)
+
+    def count(self, key: str | None = None, reason: str | None = None) -> int:
+        """Drops so far, filtered by key and/or reason (None: any)."""
+        with self._lock:
+            return sum(
+                n
+                for (k, r), n in self._counts.items()
+                if (key is None or k == key) and (reason is None or r == reason)
+            )
+
+    @property
+    def total(self) -> int:
+        """All drops so far."""
+        return self.count()
+
+    def snapshot(self) -> dict[tuple[str, str], int]:
+        """A copy of the counts: (key, reason) -> drops (for telemetry and tests)."""
+        with self._lock:
+            return dict(self._counts)
+
+
+# --------------------------------------------------------------------------- hand-over
+class LatestSlot(Generic[T]):
+    """A thread-safe slot holding the newest value; readers never block the writer."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._value: T | None = None
+        self._fresh = False
+        self.overwritten = 0  #: values replaced before anyone took them
+
+    def put(self, value: T) -> None:
+        """Store `value` as the newest (called from the Zenoh thread)."""
+        with self._cond:
+            if self._fresh:
+                self.overwritten += 1
+            self._value, self._fresh = value, True
+            self._cond.notify_all()
+
+    def peek(self) -> T | None:
+        """The newest value (taken or not), None if nothing arrived yet."""
+        with self._cond:
+            return self._value
+
+    def take(self) -> T | None:
+        """The newest value if it was not taken yet (marks it taken), else None."""
+        with self._cond:
+            if not self._fresh:
+                return None
+            self._fresh = False
+            return self._value
+
+    def wait(self, timeout_s: float) -> T | None:
+        """Wait up to `timeout_s` [s] for a value not yet taken, take and return it."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._fresh, timeout=max(0.0, timeout_s)):
+                return None
+            self._fresh = False
+            return self._value
+
+
+class DropOldestQueue(Generic[T]):
+    """A bounded thread-safe FIFO: a put on a full queue drops the oldest item."""
+
+    def __init__(self, maxlen: int) -> None:
+        if maxlen < 1:
+            raise ValueError("maxlen must be >= 1")
+        self._cond = threading.Condition()
+        self._items: collections.deque[T] = collections.deque(maxlen=maxlen)
+        self.dropped = 0  #: items dropped because the queue was full
+
+    def put(self, item: T) -> None:
+        """Append `item`, dropping the oldest one if full."""
+        with self._cond:
+            if len(self._items) == self._items.maxlen:
+                self.dropped += 1
+            self._items.append(item)
+            self._cond.notify_all()
+
+    def get(self, timeout_s: float = 0.0) -> T | None:
+        """The oldest item, waiting up to `timeout_s` [s]; None if still empty."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: bool(self._items), timeout=max(0.0, timeout_s)):
+                return None
+            return self._items.popleft()
+
+    def drain(self) -> list[T]:
+        """Every queued item, oldest first (the queue is left empty)."""
+        with self._cond:
+            items = list(self._items)
+            self._items.clear()
+            return items
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._items)
+
+
+# --------------------------------------------------------------------------- sessions
+def zenoh_config(
+    settings: BusSettings,
+    *,
+    listen_default: bool,
+    service: str | None = None,
+    mode: Mode | None = None,
+) -> zenoh.Config:
+    """The ``zenoh.Config`` of one process (see ``BusSettings.session_plan``)."""
+    plan = settings.session_plan(listen_default=listen_default, service=service, mode=mode)
+    cfg = zenoh.Config()
+    for path, value in plan.zenoh_entries().items():
+        cfg.insert_json5(path, value)
+    return cfg
+
+
+def open_session(
+    settings: BusSettings,
+    *,
+    listen_default: bool,
+    service: str | None = None,
+    mode: Mode | None = None,
+) -> zenoh.Session:
+    """Open a Zenoh session: multicast scouting off, explicit endpoints.
+
+    Args:
+        settings: the ``[bus]`` settings.
+        listen_default: True for the hub (the simulator or the launcher's router), which
+            listens on the well-known endpoint; False for every other service.
+        service: the service name (applies its ``[bus.services.<name>]`` override).
+        mode: the service's built-in Zenoh mode (None: ``settings.mode``).
+
+    The caller must close the session (``Bus`` does). Never fork after this call.
+    """
+    return zenoh.open(
+        zenoh_config(settings, listen_default=listen_default, service=service, mode=mode)
+    )
+
+
+def wait_matching(publisher: TypedPublisher[Any] | zenoh.Publisher, timeout_s: float) -> bool:
+    """Wait up to `timeout_s` [s] until a subscriber matches `publisher`; True if one does."""
+    raw = publisher.raw if isinstance(publisher, TypedPublisher) else publisher
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if raw.matching_status.matching:
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(_POLL_S)
+
+
+# --------------------------------------------------------------------------- publish
+class TypedPublisher(Generic[M]):
+    """Publishes records of one message type on one key, stamping sequence numbers."""
+
+    def __init__(self, raw: zenoh.Publisher, key: str, msg_type: type[M]) -> None:
+        self.raw = raw  #: the underlying zenoh.Publisher
+        self.key = key
+        self.msg_type = msg_type
+        self._lock = threading.Lock()
+        self._next_seq = 0
+
+    def put(self, record: M) -> M:
+        """Publish `record` with the next sequence number; returns the stamped record.
+
+        Raises:
+            TypeError: `record` is not of this publisher's message type.
+            zenoh.ZError: the session is closed.
+        """
+        if type(record) is not self.msg_type:
+            raise TypeError(
+                f"publisher of {self.msg_type.__name__} on {self.key} got {type(record).__name__}"
+            )
+        with self._lock:
+            seq = self._next_seq
+            self._next_seq += 1
+        stamped = record.with_seq(seq)
+        self.raw.put(stamped.encode())
+        return stamped
+
+    @property
+    def next_seq(self) -> int:
+        """The sequence number the next ``put`` will use."""
+        with self._lock:
+            return self._next_seq
+
+    @property
+    def matching(self) -> bool:
+        """True while at least one subscriber matches this key."""
+        return bool(self.raw.matching_status.matching)
+
+    def wait_matching(self, timeout_s: float) -> bool:
+        """Wait up to `timeout_s` [s] for a matching subscriber (see ``wait_matching``)."""
+        return wait_matching(self, timeout_s)
+
+    def undeclare(self) -> None:
+        """Stop publishing (the session stays open)."""
+        self.raw.undeclare()
+
+
+# --------------------------------------------------------------------------- subscribe
+class Subscription(Generic[M]):
+    """Decoded, validated records of one key, handed over without blocking Zenoh.
+
+    Every valid record goes to the latest-value slot (``latest``, ``take``, ``wait``), to
+    the bounded queue when ``queue_size > 0`` (``get``, ``drain``), and to the callback if
+    one was given. Invalid payloads are counted in the bus's ``DropCounter``.
+
+    Attributes:
+        received: valid records received.
+        seq_gaps: records missed according to the sequence numbers (one publisher per key).
+    """
+
+    def __init__(
+        self,
+        key: str,
+        msg_type: type[M] | None,
+        drops: DropCounter,
+        callback: Callable[[M], None] | None = None,
+        queue_size: int = 0,
+    ) -> None:
+        self.key = key
+        self.msg_type = msg_type
+        self._drops = drops
+        self._callback = callback
+        self._slot: LatestSlot[M] = LatestSlot()
+        self._queue: DropOldestQueue[M] | None = DropOldestQueue(queue_size) if queue_size else None
+        self._last_seq: dict[str, int] = {}
+        self.received = 0
+        self.seq_gaps = 0
+        self.raw: zenoh.Subscriber[Any] | None = None
+
+    # -- Zenoh thread ------------------------------------------------------------
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """The Zenoh callback: decode, validate, hand over. Never raises."""
+        key = self.key
+        try:
+            key = str(sample.key_expr)
+            if sample.kind != zenoh.SampleKind.PUT:
+                self._drops.record(key, "not_put", f"sample kind {sample.kind}")
+                return
+            data = sample.payload.to_bytes()
+            try:
+                msg = decode(data, self.msg_type) if self.msg_type else decode_any(data)
+            except MessageError as exc:
+                self._drops.record(key, exc.reason, exc.detail)
+                return
+            self._deliver(key, msg)  # type: ignore[arg-type]
+        except Exception as exc:  # never into Zenoh's thread
+            try:
+                self._drops.record(key, "internal_error", f"{type(exc).__name__}: {exc}")
+            except Exception:  # pragma: no cover - logging itself failed
+                pass
+
+    def _deliver(self, key: str, msg: M) -> None:
+        last = self._last_seq.get(key)
+        if last is not None and msg.seq > last + 1:
+            self.seq_gaps += msg.seq - last - 1
+        self._last_seq[key] = msg.seq
+        self.received += 1
+        self._slot.put(msg)
+        if self._queue is not None:
+            self._queue.put(msg)
+        if self._callback is not None:
+            try:
+                self._callback(msg)
+            except Exception as exc:
+                self._drops.record(key, "callback_error", f"{type(exc).__name__}: {exc}")
+
+    # -- the caller's loop ---------------------------------------------------------
+    def latest(self) -> M | None:
+        """The newest record (taken or not), None if nothing arrived yet."""
+        return self._slot.peek()
+
+    def take(self) -> M | None:
+        """The newest record if not taken yet (marks it taken), else None."""
+        return self._slot.take()
+
+    def wait(self, timeout_s: float) -> M | None:
+        """Wait up to `timeout_s` [s] for a record not yet taken; take and return it."""
+        return self._slot.wait(timeout_s)
+
+    def get(self, timeout_s: float = 0.0) -> M | None:
+        """The oldest queued record, waiting up to `timeout_s` [s] (needs queue_size > 0)."""
+        if self._queue is None:
+            raise RuntimeError(f"subscription to {self.key} has no queue (queue_size=0)")
+        return self._queue.get(timeout_s)
+
+    def drain(self) -> list[M]:
+        """Every queued record, oldest first (needs queue_size > 0)."""
+        if self._queue is None:
+            raise RuntimeError(f"subscription to {self.key} has no queue (queue_size=0)")
+        return self._queue.drain()
+
+    @property
+    def overflowed(self) -> int:
+        """Records dropped from the full queue (oldest first)."""
+        return self._queue.dropped if self._queue is not None else 0
+
+    @property
+    def dropped(self) -> int:
+        """Invalid payloads dropped on this subscription's key."""
+        return self._drops.count(self.key)
+
+    def undeclare(self) -> None:
+        """Stop receiving (the session stays open)."""
+        if self.raw is not None:
+            self.raw.undeclare()
+            self.raw = None
+
+
+# --------------------------------------------------------------------------- the bus
+class Bus:
+    """One service's Zenoh session, its liveliness token and typed pub/sub helpers.
+
+    The session opens in the constructor and is closed by ``close()`` / ``__exit__``
+    (always, also on exceptions). Use as ``with Bus(settings, "planner") as bus: ...``.
+    """
+
+    def __init__(
+        self,
+        settings: BusSettings,
+        service: str,
+        *,
+        listen_default: bool = False,
+        mode: Mode | None = None,
+        announce: bool = True,
+        drops: DropCounter | None = None,
+    ) -> None:
+        """Open the session and (if `announce`) declare this service's liveliness token.
+
+        Args:
+            settings: the ``[bus]`` settings (car name, endpoints, overrides).
+            service: this service's name (``[A-Za-z0-9_-]+``), used for its override
+                and its liveliness token ``racestack/<car>/alive/<service>``.
+            listen_default: True for the hub (listens on the well-known endpoint).
+            mode: the service's built-in Zenoh mode (None: ``settings.mode``).
+            announce: declare the liveliness token now.
+            drops: a shared drop counter (default: a new one, ``self.drops``).
+        """
+        self.service = check_chunk(service, "service name")
+        self.settings = settings
+        self.keys = Keys(settings.car)
+        self.drops = drops or DropCounter()
+        self._lock = threading.Lock()
+        self._closed = False
+        self._tokens: list[zenoh.LivelinessToken] = []
+        self._alive: set[str] = set()
+        self._alive_cond = threading.Condition()
+        self._alive_sub: zenoh.Subscriber[Any] | None = None
+        self.session = open_session(
+            settings, listen_default=listen_default, service=service, mode=mode
+        )
+        try:
+            if announce:
+                self.declare_alive(service)
+        except BaseException:
+            self.close()
+            raise
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def closed(self) -> bool:
+        """True once ``close`` ran."""
+        return self._closed
+
+    def close(self) -> None:
+        """Flush drop summaries and close the session (idempotent, never raises)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        try:
+            self.drops.flush()
+        except Exception:  # pragma: no cover
+            log.exception("flushing drop summaries failed")
+        try:
+            self.session.close()
+        except Exception:
+            log.exception("closing the Zenoh session failed")
+
+    # -- publish / subscribe ----------------------------------------------------------
+    def publisher(
+        self,
+        key: str,
+        msg_type: type[M],
+        *,
+        reliable: bool | None = None,
+        priority: zenoh.Priority | None = None,
+        express: bool = False,
+    ) -> TypedPublisher[M]:
+        """Declare a typed publisher on `key`.
+
+        Args:
+            key: the full key (``bus.keys.drive_cmd``...).
+            msg_type: the message class published there.
+            reliable: True: congestion control BLOCK (commands, events; never lost
+                locally); False: DROP (high-rate data where only the newest matters);
+                None: the message type's default ``msg_type.RELIABLE``.
+            priority: Zenoh priority (None: Zenoh's default, DATA).
+            express: send at once without batching.
+        """
+        if reliable is None:
+            reliable = msg_type.RELIABLE
+        raw = self.session.declare_publisher(
+            key,
+            encoding=zenoh.Encoding(MSGPACK_ENCODING),
+            congestion_control=(
+                zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
+            ),
+            priority=priority,
+            express=express,
+        )
+        return TypedPublisher(raw, key, msg_type)
+
+    def subscribe(
+        self,
+        key: str,
+        msg_type: type[M] | None,
+        callback: Callable[[M], None] | None = None,
+        *,
+        queue_size: int = 0,
+    ) -> Subscription[M]:
+        """Subscribe to `key` (wildcards allowed) with decoding and validation.
+
+        Args:
+            key: key expression.
+            msg_type: the expected message class (others are dropped as "wrong_type");
+                None accepts any known message (``decode_any``), e.g. for telemetry.
+            callback: called with every valid record ON THE ZENOH THREAD: it must return
+                quickly and never block (exceptions are caught and counted as
+                "callback_error"). Prefer the latest slot or the queue.
+            queue_size: > 0 also keeps the last `queue_size` records in a FIFO that
+                drops the oldest (``get`` / ``drain``).
+        """
+        sub: Subscription[M] = Subscription(key, msg_type, self.drops, callback, queue_size)
+        sub.raw = self.session.declare_subscriber(key, sub.on_sample)
+        return sub
+
+    def put_raw(self, key: str, payload: bytes) -> None:
+        """Publish raw bytes on `key`, bypassing the contract (tests and tools only)."""
+        self.session.put(
+            key,
+            payload,
+            encoding=zenoh.Encoding(MSGPACK_ENCODING),
+            congestion_control=zenoh.CongestionControl.BLOCK,
+        )
+
+    # -- liveliness ------------------------------------------------------------------
+    def declare_alive(self, service: str) -> zenoh.LivelinessToken:
+        """Declare the liveliness token of `service`; it lives until the session closes."""
+        token = self.session.liveliness().declare_token(self.keys.alive(service))
+        self._tokens.append(token)
+        return token
+
+    def _watch_alive(self) -> None:
+        with self._lock:
+            if self._alive_sub is not None:
+                return
+            self._alive_sub = self.session.liveliness().declare_subscriber(
+                self.keys.alive_any, self._on_alive, history=True
+            )
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            name = self.keys.service_of_alive_key(str(sample.key_expr))
+            if name is None:
+                return
+            with self._alive_cond:
+                if sample.kind == zenoh.SampleKind.PUT:
+                    self._alive.add(name)
+                else:
+                    self._alive.discard(name)
+                self._alive_cond.notify_all()
+        except Exception as exc:  # never into Zenoh's thread
+            log.warning("liveliness callback failed: %s", exc)
+
+    def alive(self) -> frozenset[str]:
+        """Names of the services of this car whose liveliness token is currently seen.
+
+        The first call starts watching (tokens already declared are reported shortly
+        after, not necessarily before this first call returns).
+        """
+        self._watch_alive()
+        with self._alive_cond:
+            return frozenset(self._alive)
+
+    def wait_alive(self, services: Iterable[str], timeout_s: float) -> bool:
+        """Wait up to `timeout_s` [s] until every service in `services` is alive."""
+        wanted = {check_chunk(s, "service name") for s in services}
+        self._watch_alive()
+        with self._alive_cond:
+            return self._alive_cond.wait_for(
+                lambda: wanted <= self._alive, timeout=max(0.0, timeout_s)
+            )
+
+    def missing_alive(self, services: Iterable[str]) -> set[str]:
+        """The services of `services` whose token is not seen now."""
+        return set(services) - self.alive()

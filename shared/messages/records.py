@@ -1,0 +1,452 @@
+"""The message records of racestack (one frozen, validated dataclass per message type).
+
+Units are in the field names (``_m``, ``_rad``, ``_mps``, ``_radps``, ``_mps2``, ``_s``,
+``_ms``, ``_a``, ``_v``, ``_c``). Every record also has ``stamp_s`` (the sender's clock [s])
+and ``seq`` (stamped by the bus publisher); all fields are keyword-only. The ranges below
+are plausibility limits that keep garbage away from the maths, not the car's actuator limits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+
+from shared.messages.codec import (
+    MAX_STAMP_S,
+    Array,
+    Message,
+    MessageError,
+    f_bool,
+    f_choice,
+    f_int,
+    f_opt_int,
+    f_opt_real,
+    f_real,
+    f_str,
+    meta,
+)
+
+#: |x|, |y| limit of positions [m].
+MAX_POS_M = 1e4
+#: |angle| limit [rad] of headings (unwrapped headings are allowed, NaN/inf are not).
+MAX_ANGLE_RAD = 1e4
+#: |speed| limit [m/s].
+MAX_SPEED_MPS = 50.0
+#: |steering angle| limit [rad].
+MAX_STEER_RAD = 1.0
+#: |yaw rate| limit [rad/s].
+MAX_YAW_RATE_RADPS = 50.0
+#: |acceleration| limit [m/s^2].
+MAX_ACCEL_MPS2 = 500.0
+#: Progress limit [m] (predicted progress may exceed the lap length).
+MAX_S_M = 1e6
+#: |contour error| limit [m].
+MAX_E_CON_M = 1e3
+#: Longest plan horizon N accepted (stages).
+MAX_HORIZON = 1000
+#: Most beams of a scan.
+MAX_BEAMS = 100_000
+#: Longest name of a log source [characters].
+MAX_SOURCE_LEN = 64
+
+_POS = (-MAX_POS_M, MAX_POS_M)
+_ANGLE = (-MAX_ANGLE_RAD, MAX_ANGLE_RAD)
+_SPEED = (-MAX_SPEED_MPS, MAX_SPEED_MPS)
+_STEER = (-MAX_STEER_RAD, MAX_STEER_RAD)
+_YAW_RATE = (-MAX_YAW_RATE_RADPS, MAX_YAW_RATE_RADPS)
+_ACCEL = (-MAX_ACCEL_MPS2, MAX_ACCEL_MPS2)
+_E_CON = (-MAX_E_CON_M, MAX_E_CON_M)
+
+_RECORD = {"frozen": True, "kw_only": True, "eq": False}
+
+
+class PoseAxis(IntEnum):
+    """Row/column of ``Pose.cov``: covariance of [x_m, y_m, yaw_rad]."""
+
+    X = 0
+    Y = 1
+    YAW = 2
+
+
+class HorizonCol(IntEnum):
+    """Column of ``Plan.horizon``: the predicted model state [X, Y, phi, s]."""
+
+    X = 0
+    Y = 1
+    PHI = 2
+    PROGRESS = 3
+
+
+class InputCol(IntEnum):
+    """Column of ``Plan.inputs``: the planned inputs [v_l, delta, v_p]."""
+
+    V_L = 0
+    DELTA = 1
+    V_P = 2
+
+
+PLAN_STATUSES = ("solved", "fallback", "braking")
+PLAN_METHODS = ("cimpcc", "mpcc")
+LAP_KINDS = ("start", "lap", "off_track", "back_on_track")
+LOG_LEVELS = ("debug", "info", "warning", "error")
+SIM_ACTIONS = ("reset", "pause", "resume")
+VESC_STATUSES = ("ok", "fault", "stale", "disconnected")
+
+
+def _bad(record: Message, text: str) -> MessageError:
+    return MessageError("bad_value", f"{type(record).__name__}: {text}")
+
+
+@dataclass(**_RECORD)
+class Pose(Message):
+    """Pose of the car from a localiser or the simulator (map frame).
+
+    Attributes:
+        x_m, y_m: position [m].
+        yaw_rad: heading [rad], counter-clockwise from the map x axis.
+        cov: optional 3x3 covariance of [x_m, y_m, yaw_rad] ([m^2], [m rad], [rad^2];
+            index with ``PoseAxis``), symmetric with a non-negative diagonal; None if unknown.
+    """
+
+    TYPE = "pose"
+
+    x_m: float = f_real(*_POS)
+    y_m: float = f_real(*_POS)
+    yaw_rad: float = f_real(*_ANGLE)
+    cov: np.ndarray | None = field(
+        default=None,
+        metadata=meta(
+            Array(
+                "<f8",
+                ndim=2,
+                cols=len(PoseAxis),
+                min_len=len(PoseAxis),
+                max_len=len(PoseAxis),
+                optional=True,
+            )
+        ),
+    )
+
+    def _check(self) -> None:
+        c = self.cov
+        if c is not None:
+            if np.any(np.diag(c) < 0.0):
+                raise _bad(self, "cov has a negative variance")
+            if not np.allclose(c, c.T, rtol=1e-6, atol=1e-9):
+                raise _bad(self, "cov is not symmetric")
+
+
+@dataclass(**_RECORD)
+class Imu(Message):
+    """IMU reading in the car frame.
+
+    Attributes:
+        yaw_rate_radps: yaw rate [rad/s], counter-clockwise positive.
+        ax_mps2, ay_mps2: longitudinal and lateral acceleration [m/s^2] (forward, left).
+    """
+
+    TYPE = "imu"
+
+    yaw_rate_radps: float = f_real(*_YAW_RATE)
+    ax_mps2: float = f_real(*_ACCEL)
+    ay_mps2: float = f_real(*_ACCEL)
+
+
+@dataclass(**_RECORD)
+class Odom(Message):
+    """Wheel odometry from the VESC driver or the simulator.
+
+    Attributes:
+        speed_mps: longitudinal speed [m/s] (negative when reversing).
+        steering_rad: front steering angle [rad], left positive.
+        yaw_rate_radps: yaw rate [rad/s] if the source knows it, else None.
+    """
+
+    TYPE = "odom"
+
+    speed_mps: float = f_real(*_SPEED)
+    steering_rad: float = f_real(*_STEER)
+    yaw_rate_radps: float | None = f_opt_real(*_YAW_RATE)
+
+
+@dataclass(**_RECORD)
+class Scan(Message):
+    """A 2D lidar scan; beam i points at ``angle_min_rad + i * angle_increment_rad``.
+
+    Attributes:
+        angle_min_rad: angle of the first beam [rad] in the car frame (finite, |.| <= 2 pi).
+        angle_increment_rad: angle between beams [rad] (non-zero, |.| <= pi).
+        ranges_m: float32 (n,) measured ranges [m], >= 0; ``+inf`` means no return (NaN is
+            rejected). n >= 1.
+    """
+
+    TYPE = "scan"
+
+    angle_min_rad: float = f_real(-2 * math.pi, 2 * math.pi)
+    angle_increment_rad: float = f_real(-math.pi, math.pi)
+    ranges_m: np.ndarray = field(
+        metadata=meta(
+            Array("<f4", ndim=1, min_len=1, max_len=MAX_BEAMS, lo=0.0, allow_pos_inf=True)
+        )
+    )
+
+    def _check(self) -> None:
+        if self.angle_increment_rad == 0.0:
+            raise _bad(self, "angle_increment_rad is zero")
+
+    def angles_rad(self) -> np.ndarray:
+        """(n,) float64 beam angles [rad]."""
+        n = self.ranges_m.shape[0]
+        return self.angle_min_rad + self.angle_increment_rad * np.arange(n, dtype=float)
+
+
+@dataclass(**_RECORD)
+class State(Message):
+    """The fused state of the car (localization bridge), what the planner starts from.
+
+    Attributes:
+        x_m, y_m: position [m]; yaw_rad: heading [rad].
+        speed_mps: longitudinal speed [m/s]; yaw_rate_radps: yaw rate [rad/s].
+        steering_rad: current steering angle [rad].
+        source_stamp_s: ``stamp_s`` of the newest input it was built from [s].
+        valid: False while the bridge has no trustworthy estimate (planner must not race).
+    """
+
+    TYPE = "state"
+
+    x_m: float = f_real(*_POS)
+    y_m: float = f_real(*_POS)
+    yaw_rad: float = f_real(*_ANGLE)
+    speed_mps: float = f_real(*_SPEED)
+    yaw_rate_radps: float = f_real(*_YAW_RATE)
+    steering_rad: float = f_real(*_STEER)
+    source_stamp_s: float = f_real(0.0, MAX_STAMP_S)
+    valid: bool = f_bool()
+
+
+@dataclass(**_RECORD)
+class DriveCmd(Message):
+    """What the planner commands: speed [m/s] and front steering angle [rad] (left +)."""
+
+    TYPE = "drive_cmd"
+    RELIABLE = True
+
+    speed_mps: float = f_real(*_SPEED)
+    steering_rad: float = f_real(*_STEER)
+
+
+_HORIZON = Array(
+    "<f8", ndim=2, cols=len(HorizonCol), min_len=2, max_len=MAX_HORIZON + 1, lo=-MAX_S_M, hi=MAX_S_M
+)
+_INPUTS = Array(
+    "<f8",
+    ndim=2,
+    cols=len(InputCol),
+    min_len=1,
+    max_len=MAX_HORIZON,
+    lo=-MAX_SPEED_MPS,
+    hi=MAX_SPEED_MPS,
+)
+_BETA = Array("<f8", ndim=1, min_len=1, max_len=MAX_HORIZON, lo=0.0, hi=1.0)
+
+
+@dataclass(**_RECORD)
+class Plan(Message):
+    """One planner tick: the predicted horizon, the inputs, beta and solver statistics.
+
+    Attributes:
+        horizon: float64 (N+1, 4) predicted states [X m, Y m, phi rad, s m] (``HorizonCol``).
+        inputs: float64 (N, 3) planned inputs [v_l m/s, delta rad, v_p m/s] (``InputCol``).
+        beta: float64 (N,) curvature weight beta in [0, 1] of each stage (a single beta is
+            sent repeated N times).
+        status: "solved" | "fallback" (shifted previous plan) | "braking".
+        solver_status: the solver back-end's own status text (<= 200 chars).
+        iterations: solver iterations; solve_time_ms: wall time of the solve [ms].
+        method: "cimpcc" | "mpcc".
+        s_m: the car's progress [m]; e_con_m: its contour error [m] (right of centreline +).
+        source_stamp_s: ``stamp_s`` of the State the plan was computed from [s].
+        consecutive_failures: failed solves in a row, this one included.
+    """
+
+    TYPE = "plan"
+
+    horizon: np.ndarray = field(metadata=meta(_HORIZON))
+    inputs: np.ndarray = field(metadata=meta(_INPUTS))
+    beta: np.ndarray = field(metadata=meta(_BETA))
+    status: str = f_choice(*PLAN_STATUSES)
+    solver_status: str = f_str(200)
+    iterations: int = f_int(0, 10**7)
+    solve_time_ms: float = f_real(0.0, 1e6)
+    method: str = f_choice(*PLAN_METHODS)
+    s_m: float = f_real(-MAX_S_M, MAX_S_M)
+    e_con_m: float = f_real(*_E_CON)
+    source_stamp_s: float = f_real(0.0, MAX_STAMP_S)
+    consecutive_failures: int = f_int(0, 10**9)
+
+    def _check(self) -> None:
+        n = self.inputs.shape[0]
+        if self.horizon.shape[0] != n + 1:
+            raise _bad(self, f"horizon has {self.horizon.shape[0]} rows, inputs {n}: need N+1")
+        if self.beta.shape[0] != n:
+            raise _bad(self, f"beta has {self.beta.shape[0]} values for N = {n} stages")
+        xy = self.horizon[:, [HorizonCol.X, HorizonCol.Y]]
+        if np.abs(xy).max() > MAX_POS_M:
+            raise MessageError("out_of_range", f"Plan.horizon: a position beyond {MAX_POS_M} m")
+        if np.abs(self.horizon[:, HorizonCol.PHI]).max() > MAX_ANGLE_RAD:
+            raise MessageError("out_of_range", "Plan.horizon: a heading beyond the limit")
+        if np.abs(self.inputs[:, InputCol.DELTA]).max() > MAX_STEER_RAD:
+            raise MessageError("out_of_range", f"Plan.inputs: |delta| > {MAX_STEER_RAD} rad")
+
+    @property
+    def n(self) -> int:
+        """The horizon length N (stages)."""
+        return int(self.inputs.shape[0])
+
+
+@dataclass(**_RECORD)
+class LapEvent(Message):
+    """A lap event of the lap counter (planner or simulator).
+
+    Attributes:
+        kind: "start" (timing started), "lap" (a lap completed), "off_track" (the car left
+            the track), "back_on_track".
+        lap: number of completed laps (for "lap": the one just completed, 1-based).
+        lap_time_s: time of the completed lap [s] ("lap" only, else None).
+        mean_speed_mps: mean speed over that lap [m/s] (or None).
+        off_track_events: off-track events during the lap so far.
+        max_abs_e_con_m: largest |contour error| during the lap so far [m] (or None).
+    """
+
+    TYPE = "lap_event"
+    RELIABLE = True
+
+    kind: str = f_choice(*LAP_KINDS)
+    lap: int = f_int(0, 10**9)
+    lap_time_s: float | None = f_opt_real(0.0, 1e6)
+    mean_speed_mps: float | None = f_opt_real(*_SPEED)
+    off_track_events: int = f_int(0, 10**9)
+    max_abs_e_con_m: float | None = f_opt_real(0.0, MAX_E_CON_M)
+
+    def _check(self) -> None:
+        if self.kind == "lap" and self.lap_time_s is None:
+            raise _bad(self, 'a "lap" event needs lap_time_s')
+
+
+@dataclass(**_RECORD)
+class VescState(Message):
+    """Motor controller values (VESC COMM_GET_VALUES); None where unknown or not reported.
+
+    Attributes:
+        temp_fet_c, temp_motor_c, temp_mos1_c..temp_mos3_c: temperatures [deg C].
+        avg_motor_current_a, avg_input_current_a, avg_id_a, avg_iq_a: currents [A].
+        duty: duty cycle [-1, 1]; erpm: electrical rpm [1/min].
+        v_in_v: input voltage [V]; avg_vd_v, avg_vq_v: d/q voltages [V].
+        amp_hours, amp_hours_charged: charge [Ah]; watt_hours, watt_hours_charged: [Wh].
+        tachometer, tachometer_abs: tachometer counts (signed and absolute).
+        pid_pos_deg: PID position [deg]; controller_id: CAN id of the controller.
+        fault_code: mc_fault_code (0 = none).
+        status: the driver's link status: "ok" | "fault" | "stale" | "disconnected".
+    """
+
+    TYPE = "vesc_state"
+
+    status: str = f_choice(*VESC_STATUSES)
+    temp_fet_c: float | None = f_opt_real(-100.0, 300.0)
+    temp_motor_c: float | None = f_opt_real(-100.0, 300.0)
+    avg_motor_current_a: float | None = f_opt_real(-1000.0, 1000.0)
+    avg_input_current_a: float | None = f_opt_real(-1000.0, 1000.0)
+    avg_id_a: float | None = f_opt_real(-1000.0, 1000.0)
+    avg_iq_a: float | None = f_opt_real(-1000.0, 1000.0)
+    duty: float | None = f_opt_real(-1.0, 1.0)
+    erpm: float | None = f_opt_real(-1e6, 1e6)
+    v_in_v: float | None = f_opt_real(0.0, 200.0)
+    amp_hours: float | None = f_opt_real(0.0, 1e6)
+    amp_hours_charged: float | None = f_opt_real(0.0, 1e6)
+    watt_hours: float | None = f_opt_real(0.0, 1e7)
+    watt_hours_charged: float | None = f_opt_real(0.0, 1e7)
+    tachometer: int | None = f_opt_int(-(2**31), 2**31 - 1)
+    tachometer_abs: int | None = f_opt_int(0, 2**32 - 1)
+    fault_code: int | None = f_opt_int(0, 255)
+    pid_pos_deg: float | None = f_opt_real(-1e6, 1e6)
+    controller_id: int | None = f_opt_int(0, 255)
+    temp_mos1_c: float | None = f_opt_real(-100.0, 300.0)
+    temp_mos2_c: float | None = f_opt_real(-100.0, 300.0)
+    temp_mos3_c: float | None = f_opt_real(-100.0, 300.0)
+    avg_vd_v: float | None = f_opt_real(-1000.0, 1000.0)
+    avg_vq_v: float | None = f_opt_real(-1000.0, 1000.0)
+
+
+@dataclass(**_RECORD)
+class SimTruth(Message):
+    """Simulator ground truth (full dynamic state and track-relative quantities).
+
+    Attributes:
+        x_m, y_m, yaw_rad: pose [m, m, rad]; speed_mps: speed at the centre of gravity [m/s].
+        yaw_rate_radps: yaw rate [rad/s]; slip_rad: side slip angle at the CoG [rad].
+        steering_rad: actual front steering angle [rad].
+        s_m: progress along the centreline [m]; e_con_m: contour error [m] (right +).
+        off_track: True while the car is outside the track bounds.
+        lap: completed laps.
+    """
+
+    TYPE = "sim_truth"
+
+    x_m: float = f_real(*_POS)
+    y_m: float = f_real(*_POS)
+    yaw_rad: float = f_real(*_ANGLE)
+    speed_mps: float = f_real(*_SPEED)
+    yaw_rate_radps: float = f_real(*_YAW_RATE)
+    slip_rad: float = f_real(-math.pi, math.pi)
+    steering_rad: float = f_real(*_STEER)
+    s_m: float = f_real(-MAX_S_M, MAX_S_M)
+    e_con_m: float = f_real(*_E_CON)
+    off_track: bool = f_bool()
+    lap: int = f_int(0, 10**9)
+
+
+@dataclass(**_RECORD)
+class LogEvent(Message):
+    """A warning or text log record of any service.
+
+    Attributes:
+        level: "debug" | "info" | "warning" | "error".
+        source: the emitting service (<= 64 chars).
+        text: the message (<= 8192 chars; senders truncate longer text).
+    """
+
+    TYPE = "log_event"
+    RELIABLE = True
+
+    level: str = f_choice(*LOG_LEVELS)
+    source: str = f_str(MAX_SOURCE_LEN)
+    text: str = f_str()
+
+
+@dataclass(**_RECORD)
+class SimControl(Message):
+    """A request to the simulator: action "reset" | "pause" | "resume"."""
+
+    TYPE = "sim_control"
+    RELIABLE = True
+
+    action: str = f_choice(*SIM_ACTIONS)
+
+
+#: Every message class, in contract order.
+MESSAGE_TYPES: tuple[type[Message], ...] = (
+    Pose,
+    Imu,
+    Odom,
+    Scan,
+    State,
+    DriveCmd,
+    Plan,
+    LapEvent,
+    VescState,
+    SimTruth,
+    LogEvent,
+    SimControl,
+)

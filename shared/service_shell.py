@@ -1,0 +1,71 @@
+"""The common shell of every service process: arguments, config, logging, clean stop.
+
+``run_service(name, argv, body)`` parses ``--config FILE`` (plus the service's own options),
+loads and validates the one configuration, installs SIGINT/SIGTERM handlers that set a stop
+event, and calls ``body(config, args, stop)``. A configuration or track error is one clear
+line and exit code 2; the body must return when ``stop`` is set (closing its Zenoh session).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Callable, Sequence
+
+from shared.config import ConfigError, RacestackConfig, load_config
+from shared.track import TrackError
+
+Body = Callable[[RacestackConfig, argparse.Namespace, threading.Event], int]
+AddArgs = Callable[[argparse.ArgumentParser], None]
+
+
+def install_stop_handlers(stop: threading.Event) -> None:
+    """SIGINT and SIGTERM set `stop` (main thread only); a second SIGINT exits at once."""
+
+    def handler(signum: int, _frame: object) -> None:
+        if stop.is_set() and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        stop.set()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, handler)
+        signal.signal(signal.SIGTERM, handler)
+
+
+def run_service(
+    name: str,
+    argv: Sequence[str] | None,
+    body: Body,
+    add_args: AddArgs | None = None,
+    description: str | None = None,
+) -> int:
+    """Run service `name`'s `body` under the common shell; returns the exit code."""
+    ap = argparse.ArgumentParser(prog=f"racestack run {name}", description=description)
+    ap.add_argument("--config", help="TOML configuration file (default: built-in defaults)")
+    ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    if add_args:
+        add_args(ap)
+    args = ap.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format=f"%(asctime)s {name} %(levelname)s %(name)s: %(message)s",
+    )
+    log = logging.getLogger(f"services.{name}")
+    try:
+        cfg = load_config(args.config)
+    except ConfigError as exc:
+        print(f"{name}: configuration error:\n{exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    install_stop_handlers(stop)
+    try:
+        return body(cfg, args, stop)
+    except (ConfigError, TrackError) as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        log.info("interrupted")
+        return 130
