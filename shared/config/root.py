@@ -17,6 +17,7 @@ from pydantic import Field, ValidationError
 from shared.config.base import ConfigError, Section
 from shared.config.bus import BusSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
+from shared.config.simulator import SimulatorSettings
 
 
 class TrackSettings(Section):
@@ -32,6 +33,7 @@ class RacestackConfig(Section):
     curvature: CurvatureSettings = CurvatureSettings()
     planner: PlannerSettings = PlannerSettings()
     bus: BusSettings = BusSettings()
+    simulator: SimulatorSettings = SimulatorSettings()
 
 
 def _format_errors(source: str, exc: ValidationError) -> str:

@@ -1,0 +1,122 @@
+"""Settings of the simulator: the plant's vehicle, integration, actuation, sensors, seed.
+
+Defaults follow the F1TENTH gym (``../shared/docs/vehicle-and-vesc.md``) where it has a value;
+the rest are documented choices for a 1:10 car with a lidar localiser.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from shared.config.base import Section
+from shared.config.vehicle import DynamicVehicleParams
+
+NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Rate = Annotated[float, Field(gt=0.0, le=10000.0, allow_inf_nan=False)]
+
+OffTrackPolicy = Literal["continue", "stop", "reset_to_centreline"]
+
+
+class PoseSensorSettings(Section):
+    """Pose as a lidar localiser delivers it: captured at `rate_hz`, released `latency_s` later.
+
+    Each measurement is stamped with its capture time; noise is white Gaussian.
+    """
+
+    rate_hz: Rate = Field(40.0, description="capture rate [Hz]")
+    latency_s: float = Field(0.02, ge=0.0, le=2.0, description="capture -> release delay [s]")
+    position_noise_std_m: NonNeg = Field(0.01, description="std of x and y each [m]")
+    yaw_noise_std_rad: NonNeg = Field(0.005, description="std of yaw [rad]")
+
+
+class ImuSettings(Section):
+    """IMU: yaw rate and body-frame longitudinal / lateral acceleration at the CoG."""
+
+    rate_hz: Rate = Field(100.0, description="sample rate [Hz] (at most one per sim step)")
+    yaw_rate_noise_std_radps: NonNeg = Field(0.01, description="std of yaw rate [rad/s]")
+    accel_noise_std_mps2: NonNeg = Field(0.05, description="std of each acceleration [m/s^2]")
+
+
+class OdometrySettings(Section):
+    """Wheel odometry: wheel speed (``v cos(beta)``, longitudinal) and road-wheel angle."""
+
+    rate_hz: Rate = Field(50.0, description="sample rate [Hz] (VESC core state)")
+    speed_noise_std_mps: NonNeg = Field(0.02, description="std of the wheel speed [m/s]")
+    steering_noise_std_rad: NonNeg = Field(0.0, description="std of the steering angle [rad]")
+
+
+class LidarSettings(Section):
+    """2-D lidar simulated by ray marching on the occupancy map (F1TENTH gym defaults)."""
+
+    rate_hz: Rate = Field(20.0, description="scan rate [Hz]")
+    beams: int = Field(1080, ge=2, le=100000, description="beams per scan")
+    fov_rad: float = Field(4.7, gt=0.0, le=6.2832, description="field of view, centred ahead")
+    range_max_m: float = Field(30.0, gt=0.0, le=1000.0, description="maximum range [m]")
+    noise_std_m: NonNeg = Field(0.01, description="std of the range noise on hits [m]")
+    mount_x_m: float = Field(
+        0.0, ge=-2.0, le=2.0, description="sensor ahead of the CoG along the car's x axis [m]"
+    )
+    unknown_is_occupied: bool = Field(
+        True, description="unknown map cells stop beams (False: they are free, like the gym)"
+    )
+
+
+class SimulatorSettings(Section):
+    """The simulated plant: vehicle, integration, actuation, sensors, seed, off-track policy.
+
+    Actuation path of a command (speed [m/s], steering [rad]) received at time t:
+    both channels wait `actuation_delay_s` (transport, VESC serial, servo PWM frame); the
+    steering channel additionally waits `steering_delay_s` (the gym's 2-step steering buffer
+    at 10 ms). Then the speed and servo P-controllers of `vehicle` act. If no command newer
+    than `command_timeout_s` has arrived (after the delay), the speed target is 0 (brake) and
+    the servo holds its last target, like a VESC timeout.
+    """
+
+    vehicle: DynamicVehicleParams = DynamicVehicleParams()
+    integration_step_s: float = Field(
+        0.01,
+        gt=0.0,
+        le=0.01,
+        description="fixed RK4 step [s]; at most 0.01 s (split further only where the "
+        "low-speed lateral dynamics would make RK4 unstable)",
+    )
+    steering_delay_s: float = Field(
+        0.02, ge=0.0, le=1.0, description="extra steering delay [s] (gym: 2 steps of 10 ms)"
+    )
+    actuation_delay_s: float = Field(
+        0.01,
+        ge=0.0,
+        le=1.0,
+        description="delay of both channels [s]: Zenoh + VESC serial + servo PWM, ~1 period",
+    )
+    command_timeout_s: float = Field(
+        0.1, gt=0.0, le=10.0, description="brake when the newest command is older [s] (VESC)"
+    )
+    kinematic_below_mps: float = Field(
+        0.5, gt=0.0, le=5.0, description="below this |v| the kinematic model applies [m/s]"
+    )
+    kinematic_blend_mps: float = Field(
+        0.2,
+        ge=0.0,
+        le=5.0,
+        description="width of the smooth kinematic -> dynamic blend above kinematic_below_mps "
+        "[m/s]; 0 switches hard like the gym",
+    )
+    pose: PoseSensorSettings = PoseSensorSettings()
+    imu: ImuSettings = ImuSettings()
+    odometry: OdometrySettings = OdometrySettings()
+    lidar: LidarSettings = LidarSettings()
+    seed: int = Field(0, ge=0, description="seed of all sensor noise (numpy Generator)")
+    off_track_policy: OffTrackPolicy = Field(
+        "continue",
+        description="what the runner does when the footprint leaves the track: keep driving "
+        "and record it, stop the run, or put the car back on the centreline",
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SimulatorSettings:
+        if self.command_timeout_s <= self.integration_step_s:
+            raise ValueError("command_timeout_s must exceed integration_step_s")
+        return self
