@@ -18,6 +18,7 @@ from shared.config.base import ConfigError, Section
 from shared.config.bus import BusSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
 from shared.config.simulator import SimulatorSettings
+from shared.config.vesc import VescSettings
 
 
 class TrackSettings(Section):
@@ -34,6 +35,7 @@ class RacestackConfig(Section):
     planner: PlannerSettings = PlannerSettings()
     bus: BusSettings = BusSettings()
     simulator: SimulatorSettings = SimulatorSettings()
+    vesc: VescSettings = VescSettings()
 
 
 def _format_errors(source: str, exc: ValidationError) -> str:

@@ -1,0 +1,97 @@
+"""Settings of the VESC driver: serial port, conversions, limits, rates and safety timeouts.
+
+Conversion conventions are those of the F1TENTH VESC driver
+(``../shared/docs/vehicle-and-vesc.md``)::
+
+    erpm  = speed_to_erpm_gain * (speed_sign * v) + speed_to_erpm_offset
+    servo = steering_angle_to_servo_gain * delta + steering_angle_to_servo_offset
+    v     = speed_sign * (erpm - speed_to_erpm_offset) / speed_to_erpm_gain    (odometry)
+
+``speed_sign`` applies in both directions, so a commanded speed reads back with its own sign;
+set it to -1 when the motor is wired so that positive ERPM drives the car backwards.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from shared.config.base import Section
+
+__all__ = ["VescSettings"]
+
+
+class VescSettings(Section):
+    """The VESC driver's settings (units in the names)."""
+
+    port: str = Field("/dev/ttyACM0", min_length=1, description="serial device path")
+    baudrate: int = Field(115200, gt=0, le=4_000_000, description="serial baud rate [bit/s]")
+
+    speed_to_erpm_gain: float = Field(
+        4614.0, gt=0.0, le=1e6, allow_inf_nan=False, description="ERPM per m/s"
+    )
+    speed_to_erpm_offset: float = Field(
+        0.0, ge=-1e5, le=1e5, allow_inf_nan=False, description="ERPM at 0 m/s"
+    )
+    speed_sign: Literal[1, -1] = Field(1, description="+1 or -1: direction of the wiring")
+    max_abs_erpm: float = Field(
+        23250.0, gt=0.0, le=1e6, allow_inf_nan=False, description="ERPM clamp (symmetric)"
+    )
+
+    steering_angle_to_servo_gain: float = Field(
+        -1.2135, ge=-100.0, le=100.0, allow_inf_nan=False, description="servo units per rad"
+    )
+    steering_angle_to_servo_offset: float = Field(
+        0.5304, ge=0.0, le=1.0, allow_inf_nan=False, description="servo position at 0 rad"
+    )
+    servo_min: float = Field(0.15, ge=0.0, le=1.0, description="lowest servo position [0, 1]")
+    servo_max: float = Field(0.85, ge=0.0, le=1.0, description="highest servo position [0, 1]")
+
+    wheelbase_m: float = Field(
+        0.324, gt=0.0, le=5.0, allow_inf_nan=False, description="odometry yaw rate wheelbase"
+    )
+
+    command_rate_hz: float = Field(
+        50.0, gt=0.0, le=1000.0, allow_inf_nan=False, description="rate of motor frames"
+    )
+    poll_values_rate_hz: float = Field(
+        50.0, ge=0.0, le=1000.0, allow_inf_nan=False, description="GET_VALUES rate (0 = off)"
+    )
+    command_timeout_s: float = Field(
+        0.1, gt=0.0, le=10.0, allow_inf_nan=False, description="no command for this -> brake"
+    )
+    brake_current_a: float = Field(
+        20.0, ge=0.0, le=200.0, allow_inf_nan=False, description="brake current on timeout"
+    )
+    stale_values_s: float = Field(
+        0.5, gt=0.0, le=60.0, allow_inf_nan=False, description="no reply for this -> stale"
+    )
+    reconnect_backoff_initial_s: float = Field(
+        0.05, gt=0.0, le=60.0, allow_inf_nan=False, description="first reopen delay"
+    )
+    reconnect_backoff_max_s: float = Field(
+        2.0, gt=0.0, le=600.0, allow_inf_nan=False, description="longest reopen delay"
+    )
+    max_payload_bytes: int = Field(
+        512, ge=80, le=65535, description="longest reply payload accepted by the decoder"
+    )
+    invalid_command: Literal["brake", "clamp"] = Field(
+        "clamp",
+        description=(
+            "an out-of-range command (ERPM beyond max_abs_erpm or servo outside "
+            "[servo_min, servo_max]) is clamped, or turned into braking; NaN/inf always brakes"
+        ),
+    )
+
+    @model_validator(mode="after")
+    def _check_ranges(self) -> VescSettings:
+        if self.servo_min >= self.servo_max:
+            raise ValueError("servo_min must be below servo_max")
+        if self.steering_angle_to_servo_gain == 0.0:
+            raise ValueError("steering_angle_to_servo_gain must not be zero")
+        if self.reconnect_backoff_max_s < self.reconnect_backoff_initial_s:
+            raise ValueError("reconnect_backoff_max_s must be >= reconnect_backoff_initial_s")
+        if abs(self.speed_to_erpm_offset) >= self.max_abs_erpm:
+            raise ValueError("|speed_to_erpm_offset| must be below max_abs_erpm")
+        return self
