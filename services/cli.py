@@ -1,8 +1,17 @@
-"""The ``racestack`` command: one entry point with a subcommand per job."""
+"""The ``racestack`` command: one entry point with a subcommand per job.
+
+racestack up [--laps 3]          the stack racing the simulator, one process per service
+racestack demo                   the main job (same as ``up``)
+racestack run SERVICE            one service alone (router, simulator, planner, ...)
+racestack bench ...              the paper's lap-time experiment in one process
+racestack report RUN             the lap table and figures of a recorded run
+racestack laps                   the planner against its own kinematic model
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 from collections.abc import Callable
@@ -11,6 +20,8 @@ from shared.config import ConfigError, load_config
 from shared.track import TrackError
 
 Handler = Callable[[argparse.Namespace], int]
+#: Services startable with ``racestack run NAME`` (each is ``python -m services.NAME``).
+SERVICES = ("router", "simulator", "localization_bridge", "planner", "telemetry", "vesc_driver")
 
 
 def _cmd_laps(args: argparse.Namespace) -> int:
@@ -42,11 +53,86 @@ def _cmd_laps(args: argparse.Namespace) -> int:
     return 0 if laps == args.laps else 1
 
 
+def _cmd_up(args: argparse.Namespace) -> int:
+    """Start the stack, race, print the lap table, stop everything."""
+    import threading
+    from pathlib import Path
+
+    from services.launcher.up import UpOptions, run_up
+    from shared.service_shell import install_stop_handlers
+
+    cfg = load_config(args.config)
+    stop = threading.Event()
+    install_stop_handlers(stop)
+    run_dir = Path(args.run_dir) if args.run_dir else None
+    opts = UpOptions(config_path=args.config, laps=args.laps, run_dir=run_dir)
+    if args.serve is not None:
+        opts.telemetry_args += ["--serve", str(args.serve)]
+    return run_up(cfg, opts, stop_requested=stop.is_set)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    """Run one service in this process (its own shell parses the rest of the line)."""
+    module = importlib.import_module(f"services.{args.service}.service")
+    return int(module.main(args.rest))
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from services.bench.run import main as bench_main
+
+    return bench_main(args=args)
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from services.telemetry.report import main as report_main
+
+    return int(report_main(args.rest))
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     ap = argparse.ArgumentParser(prog="racestack", description="CiMPCC racing stack for F1TENTH")
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = ap.add_subparsers(dest="command", required=True)
+
+    for name, help_text in (
+        (
+            "up",
+            "race the stack against the simulator (one process per "
+            "service), print the lap table, stop",
+        ),
+        ("demo", "the main job: same as `up`"),
+    ):
+        up = sub.add_parser(name, help=help_text)
+        up.add_argument("--config", help="TOML configuration file")
+        up.add_argument("--laps", type=int, default=3)
+        up.add_argument("--run-dir", help="where logs and telemetry go (default runs/<time>)")
+        up.add_argument(
+            "--serve",
+            type=int,
+            metavar="PORT",
+            help="also serve live telemetry on 127.0.0.1:PORT for a Rerun viewer",
+        )
+        up.set_defaults(handler=_cmd_up)
+
+    run = sub.add_parser(
+        "run",
+        help="run one service alone",
+        description="racestack run SERVICE [--config FILE] [service options]",
+    )
+    run.add_argument("service", choices=SERVICES)
+    run.add_argument("rest", nargs=argparse.REMAINDER, help="the service's own options")
+    run.set_defaults(handler=_cmd_run)
+
+    from services.bench.run import build_parser as bench_parser
+
+    bench = sub.add_parser("bench", help="the paper's lap-time experiment (in process)")
+    bench_parser(bench)
+    bench.set_defaults(handler=_cmd_bench)
+
+    report = sub.add_parser("report", help="lap table and figures of a recorded run (.rrd)")
+    report.add_argument("rest", nargs=argparse.REMAINDER, help="RUN.rrd or run folder, options")
+    report.set_defaults(handler=_cmd_report)
 
     laps = sub.add_parser("laps", help="planner vs its own kinematic model, lap times")
     laps.add_argument("--config", help="TOML configuration file")
@@ -54,21 +140,17 @@ def build_parser() -> argparse.ArgumentParser:
     laps.add_argument("--method", choices=["cimpcc", "mpcc"])
     laps.add_argument("--laps", type=int, default=2)
     laps.set_defaults(handler=_cmd_laps)
-
-    demo = sub.add_parser("demo", help="the main job: race on the default track")
-    demo.add_argument("--config", help="TOML configuration file")
-    demo.add_argument("--laps", type=int, default=2)
-    demo.set_defaults(handler=_cmd_laps, track=None, method=None)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``racestack`` command; returns the exit code."""
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    if args.command not in ("run", "report"):
+        logging.basicConfig(
+            level=logging.DEBUG if args.verbose else logging.INFO,
+            format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        )
     handler: Handler = args.handler
     try:
         return handler(args)

@@ -54,6 +54,8 @@ class SolveResult:
         e_con_m: the car's contour error [m] (positive right of the centreline).
         consecutive_failures: failed solves in a row, this one included.
         method: "cimpcc" or "mpcc".
+        speed_limited: the car was outside the track, so the speed command was capped at
+            ``off_track_speed_mps`` (a safety rule outside the optimisation).
     """
 
     command: DriveCommand
@@ -68,6 +70,7 @@ class SolveResult:
     e_con_m: float
     consecutive_failures: int
     method: str
+    speed_limited: bool = False
 
 
 class Planner:
@@ -166,8 +169,9 @@ class Planner:
         xs, us = pr.unpack(w)
         u0 = np.clip(us[0, :NU], self._u_lo, self._u_hi)
         self._u_applied = u0
+        speed, limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
         return SolveResult(
-            command=DriveCommand(float(u0[U.V_L]), float(u0[U.DELTA])),
+            command=DriveCommand(speed, float(u0[U.DELTA])),
             states=xs[:, : len(S)].copy(),
             inputs=us[:, :NU].copy(),
             status=SOLVED,
@@ -179,9 +183,23 @@ class Planner:
             e_con_m=e0,
             consecutive_failures=0,
             method=self.method,
+            speed_limited=limited,
         )
 
     # ------------------------------------------------------------------ helpers
+    def _safe_speed(self, speed: float, s0: float, e0: float) -> tuple[float, bool]:
+        """Cap |speed| at off_track_speed_mps while the car is outside the track boundaries.
+
+        The kinematic model knows no tyre limit, so from outside the track it would ask for
+        ever more speed to get back sooner; a real car would slide further. Not part of the
+        paper's method; applies to every method alike.
+        """
+        w_r, w_l = self.track.interp_width(s0)
+        outside = e0 > float(w_r) or e0 < -float(w_l)
+        cap = self.settings.off_track_speed_mps
+        if outside and abs(speed) > cap:
+            return float(np.clip(speed, -cap, cap)), True
+        return speed, False
     def _beta(self, s0: float, s_pred: np.ndarray) -> np.ndarray:
         """beta per stage (N,): all g(NSC(s0)) (paper) or g(NSC(s_k)) of the warm start."""
         if self.settings.beta_mode == "per_stage":

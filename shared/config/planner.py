@@ -115,6 +115,15 @@ class PlannerSettings(Section):
         3, ge=1, le=100, description="failed solves in a row before the planner brakes"
     )
     solver: SolverSettings = SolverSettings()
+    off_track_speed_mps: float = Field(
+        1.5,
+        ge=0.0,
+        le=20.0,
+        description="safety: while the car is outside the track, |speed command| is capped here",
+    )
+    stale_state_s: float = Field(
+        0.1, gt=0.0, le=5.0, description="planner service: state older than this -> brake"
+    )
 
     def weights(self, method: str | None = None) -> MethodWeights:
         """The weight set of `method` (default: the configured one)."""

@@ -18,8 +18,8 @@ import numpy as np
 #: Point spacing of the generated centrelines [m] (like map416's 4 cm).
 SPACING_M = 0.04
 
-#: Like the paper's track: ~40 m, 1.2 m wide, six sharp turns of radius 0.8-1.1 m
-#: (two hairpin-like), straights of 2-9 m between them.
+#: Like the paper's track (map416: tightest radius ~0.9 m): ~42 m, 1.2 m wide, seven sharp
+#: turns of radius 0.9-1.1 m (one a 180 deg hairpin), straights of 1-12 m between them.
 PAPERLIKE = {
     "half_width_m": 0.6,
     "segments": [
@@ -30,7 +30,7 @@ PAPERLIKE = {
         ("straight", 3.0),
         ("arc", 1.1, -90.0),
         ("straight", 1.5),
-        ("arc", 0.8, 180.0),
+        ("arc", 1.0, 180.0),
         ("straight", "close"),
         ("arc", 1.0, -90.0),
         ("straight", 6.0),

@@ -1,0 +1,298 @@
+"""``racestack bench``: the paper's lap-time experiment, in process, with table and figures.
+
+    racestack bench --track PATH_OR_NAME --laps 17 --methods cimpcc,mpcc,mpcc-tuned --out DIR
+
+Methods:
+- ``cimpcc``: the paper's CiMPCC weights (``[planner.cimpcc]``);
+- ``mpcc``: the paper's MPCC weights (``[planner.mpcc]``, u_ref = (3.3, 0, 3.0));
+- ``mpcc-tuned``: MPCC with its progress-speed reference swept (v_l ref = 1.1 x v_p ref) over
+  a few laps each; then the full run at the fastest value whose laps were all completed with
+  no off-track event. The chosen value and the sweep are recorded in results.json.
+
+All methods share one built (and compiled) problem: they differ only in parameters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from services.bench.closed_loop import LoopOptions, run_method
+from services.bench.figures import write_figures
+from services.bench.results import MethodRun, results_document, write_results
+from services.bench.table import format_paper_table, format_table
+from services.planner.planner import Planner
+from shared.config import ConfigError, RacestackConfig, load_config
+from shared.config.planner import MethodWeights
+from shared.track import TrackError, load_track
+
+METHODS = ("cimpcc", "mpcc", "mpcc-tuned")
+#: Progress-speed references [m/s] tried by mpcc-tuned (v_l ref = 1.1 x v_p ref).
+DEFAULT_SWEEP_MPS = (2.2, 2.4, 2.6, 2.8, 3.0, 3.2, 3.4)
+
+
+class BenchError(ValueError):
+    """A bench argument is wrong (reported before anything runs)."""
+
+
+def parse_methods(text: str) -> list[str]:
+    """Split and check the --methods list."""
+    names = [m.strip() for m in text.split(",") if m.strip()]
+    if not names:
+        raise BenchError("no method given")
+    unknown = [m for m in names if m not in METHODS]
+    if unknown:
+        raise BenchError(
+            f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}"
+        )
+    if len(set(names)) != len(names):
+        raise BenchError("a method is listed twice")
+    return names
+
+
+def check_out_dir(path: Path) -> None:
+    """Create the output folder and prove it is writable."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".write-test"
+        probe.write_text("ok")
+        probe.unlink()
+    except OSError as exc:
+        raise BenchError(f"output folder {path} is not writable ({exc.strerror or exc})") from None
+
+
+class ProgressBar:
+    """A one-line text progress bar on stderr."""
+
+    def __init__(self, label: str, stream=sys.stderr) -> None:
+        self.label = label
+        self.stream = stream
+        self.t0 = time.perf_counter()
+
+    def __call__(self, done: int, total: int) -> None:
+        width = 30
+        filled = int(width * done / max(total, 1))
+        bar = "#" * filled + "." * (width - filled)
+        self.stream.write(
+            f"\r{self.label:<28} [{bar}] {done}/{total} laps {time.perf_counter() - self.t0:5.1f} s"
+        )
+        if done >= total:
+            self.stream.write("\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End the line."""
+        self.stream.write("\n")
+        self.stream.flush()
+
+
+def mpcc_weights_for(base: MethodWeights, v_p_ref: float) -> MethodWeights:
+    """MPCC weights with the speed references set to (1.1 v_p_ref, 0, v_p_ref)."""
+    return base.model_copy(update={"u_ref": (round(1.1 * v_p_ref, 4), 0.0, v_p_ref)})
+
+
+def sweep_mpcc(
+    planner: Planner,
+    track,
+    cfg: RacestackConfig,
+    opts: LoopOptions,
+    values: list[float],
+    sweep_laps: int,
+) -> tuple[float | None, list[dict]]:
+    """Try each progress-speed reference for a few laps; the fastest clean one wins."""
+    rows = []
+    for v in values:
+        planner.weights = mpcc_weights_for(cfg.planner.mpcc, v)
+        bar = ProgressBar(f"mpcc-tuned sweep v_p={v:.2f}")
+        run = run_method(
+            "sweep",
+            planner,
+            track,
+            cfg.simulator,
+            LoopOptions(**{**opts.__dict__, "laps": sweep_laps}),
+            bar,
+        )
+        if run.completed_laps < sweep_laps:
+            bar.close()
+        off = sum(lap.off_track_events for lap in run.laps)
+        clean = run.completed_laps == sweep_laps and off == 0
+        mean = float(np.mean([lap.lap_time_s for lap in run.laps])) if run.laps else None
+        rows.append(
+            {
+                "v_p_ref_mps": v,
+                "v_l_ref_mps": round(1.1 * v, 4),
+                "completed_laps": run.completed_laps,
+                "off_track_events": off,
+                "mean_lap_time_s": mean,
+                "clean": clean,
+            }
+        )
+    clean_rows = [r for r in rows if r["clean"]]
+    if not clean_rows:
+        return None, rows
+    best = min(clean_rows, key=lambda r: r["mean_lap_time_s"])
+    return best["v_p_ref_mps"], rows
+
+
+def run_bench(
+    cfg: RacestackConfig,
+    track_spec: str,
+    methods: list[str],
+    laps: int,
+    out_dir: Path,
+    opts: LoopOptions,
+    sweep_values: list[float],
+    sweep_laps: int,
+    figures: bool = True,
+) -> dict:
+    """Run every method and write results.json and the figures; returns the document."""
+    track = load_track(track_spec)
+    t_start = time.perf_counter()
+    base = Planner(track, cfg.planner, cfg.curvature)
+    runs: list[MethodRun] = []
+    timings: dict[str, float] = {}
+    for name in methods:
+        t0 = time.perf_counter()
+        method = "cimpcc" if name == "cimpcc" else "mpcc"
+        planner = Planner(
+            track,
+            cfg.planner,
+            cfg.curvature,
+            method=method,
+            problem=base.problem,
+            solver=base.solver,
+        )
+        extra: dict = {}
+        if name == "mpcc-tuned":
+            chosen, rows = sweep_mpcc(planner, track, cfg, opts, sweep_values, sweep_laps)
+            timings["mpcc-tuned sweep"] = time.perf_counter() - t0
+            extra = {"sweep": rows, "sweep_laps": sweep_laps, "chosen_v_p_ref_mps": chosen}
+            if chosen is None:
+                print(
+                    "mpcc-tuned: no swept value stayed clean; running the slowest one",
+                    file=sys.stderr,
+                )
+                chosen = min(sweep_values)
+            planner.weights = mpcc_weights_for(cfg.planner.mpcc, chosen)
+            extra["u_ref"] = list(planner.weights.u_ref)
+            t0 = time.perf_counter()
+        bar = ProgressBar(name)
+        run = run_method(
+            name, planner, track, cfg.simulator, LoopOptions(**{**opts.__dict__, "laps": laps}), bar
+        )
+        if run.completed_laps < laps:
+            bar.close()
+            print(
+                f"{name}: {run.completed_laps}/{laps} laps ({run.extra.get('aborted', '')})",
+                file=sys.stderr,
+            )
+        run.extra.update(extra)
+        runs.append(run)
+        timings[name] = time.perf_counter() - t0
+    meta = {
+        "laps_requested": laps,
+        "delay_mode": opts.delay_mode,
+        "compute_delay_s": opts.compute_delay_s,
+        "planner_dt_s": cfg.planner.dt_s,
+        "horizon_steps": cfg.planner.horizon_steps,
+        "simulator_vehicle": cfg.simulator.vehicle.model_dump(),
+        "wall_time_s": {k: round(v, 2) for k, v in timings.items()},
+        "wall_time_total_s": round(time.perf_counter() - t_start, 2),
+        "track_source": track.source,
+    }
+    doc = results_document(track.name, track.length_m, runs, meta)
+    write_results(out_dir / "results.json", doc)
+    if figures:
+        write_figures(out_dir, track, base.profile, runs)
+    return doc
+
+
+def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """Arguments of ``racestack bench``."""
+    ap = ap or argparse.ArgumentParser(prog="racestack bench", description=__doc__.splitlines()[0])
+    ap.add_argument("--config", help="TOML configuration file")
+    ap.add_argument(
+        "--track", help="built-in name, folder or centreline file (default: the config's track)"
+    )
+    ap.add_argument("--laps", type=int, default=17, help="timed flying laps per method")
+    ap.add_argument("--methods", default="cimpcc,mpcc", help=f"comma list of {', '.join(METHODS)}")
+    ap.add_argument("--out", default=None, help="output folder (default runs/bench-<time>)")
+    ap.add_argument(
+        "--delay",
+        choices=["fixed", "measured"],
+        default="fixed",
+        help="compute delay before a command acts: fixed (default) or measured",
+    )
+    ap.add_argument("--compute-delay-ms", type=float, default=2.0)
+    ap.add_argument(
+        "--sweep",
+        default=",".join(f"{v:g}" for v in DEFAULT_SWEEP_MPS),
+        help="mpcc-tuned: progress-speed references to try [m/s]",
+    )
+    ap.add_argument("--sweep-laps", type=int, default=3)
+    ap.add_argument("--no-figures", action="store_true")
+    return ap
+
+
+def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) -> int:
+    """Run the bench from the command line; exit code 0 on success, 2 on bad arguments."""
+    args = args or build_parser().parse_args(argv)
+    try:
+        cfg = load_config(args.config)
+        methods = parse_methods(args.methods)
+        if args.laps < 1:
+            raise BenchError("--laps must be at least 1")
+        if args.sweep_laps < 1:
+            raise BenchError("--sweep-laps must be at least 1")
+        if not 0.0 <= args.compute_delay_ms <= 1e3 * cfg.planner.dt_s:
+            raise BenchError(f"--compute-delay-ms must be in [0, {1e3 * cfg.planner.dt_s:g}]")
+        try:
+            sweep = [float(v) for v in args.sweep.split(",") if v.strip()]
+        except ValueError:
+            raise BenchError(f"--sweep must be numbers, got {args.sweep!r}") from None
+        if "mpcc-tuned" in methods and not sweep:
+            raise BenchError("--sweep is empty")
+        track_spec = args.track or cfg.track.source
+        load_track(track_spec)  # a wrong track fails here, before anything runs
+        out = Path(args.out or Path("runs") / time.strftime("bench-%Y%m%d-%H%M%S"))
+        check_out_dir(out)
+    except (BenchError, ConfigError, TrackError) as exc:
+        print(f"racestack bench: error: {exc}", file=sys.stderr)
+        return 2
+    opts = LoopOptions(
+        laps=args.laps, delay_mode=args.delay, compute_delay_s=args.compute_delay_ms / 1e3
+    )
+    doc = run_bench(
+        cfg,
+        track_spec,
+        methods,
+        args.laps,
+        out,
+        opts,
+        sweep,
+        args.sweep_laps,
+        figures=not args.no_figures,
+    )
+    print(format_table(doc))
+    print()
+    print(format_paper_table())
+    wall = doc["meta"]["wall_time_s"]
+    print("\nwall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in wall.items()))
+    if "mpcc-tuned" in doc["methods"]:
+        m = doc["methods"]["mpcc-tuned"]
+        print(
+            f"mpcc-tuned: chosen v_p ref {m['chosen_v_p_ref_mps']} m/s "
+            f"(u_ref {m['u_ref']}) from a {m['sweep_laps']}-lap sweep"
+        )
+    print(f"results: {out / 'results.json'}" + ("" if args.no_figures else f", figures in {out}"))
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Pose, IMU and wheel odometry in; one fused ``state`` out."""
