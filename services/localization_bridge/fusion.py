@@ -4,12 +4,20 @@
 ``State`` the planner consumes: position and yaw from the pose (rear axle, map frame), speed
 and steering from the wheel odometry, yaw rate from the IMU (or odometry). The state's
 ``source_stamp_s`` is the pose's capture stamp, so consumers can judge its age. A pose is
-the only trigger; odometry or IMU older than ``max_input_age_s`` is not used (the state is
-then marked invalid until they return). Latency compensation and an EKF come later.
+the only trigger; odometry or IMU older than ``max_input_age_s`` is not used.
+
+Latency compensation: a pose describes the car at its capture instant, which is already
+20-50 ms old when it arrives (localiser latency plus its rate). The state is the pose
+predicted forward to the bridge's clock with the kinematic unicycle
+``x += v cos(yaw) dt``, ``y += v sin(yaw) dt``, ``yaw += r dt`` (v from odometry, r the yaw
+rate), ``dt = now - pose.stamp_s`` clipped to ``[0, max_prediction_s]``. ``source_stamp_s``
+stays the pose's capture stamp, so consumers still see how old the information is.
+An EKF fusing all three comes with the localization issue.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from shared.messages import Imu, Odom, Pose, State
@@ -21,9 +29,11 @@ class StateAssembler:
 
     Attributes:
         max_input_age_s: odometry/IMU older than this (against the pose stamp) is stale [s].
+        max_prediction_s: longest forward prediction of a pose [s] (0 disables it).
     """
 
     max_input_age_s: float = 0.25
+    max_prediction_s: float = 0.1
     odom: Odom | None = None
     imu: Imu | None = None
 
@@ -47,11 +57,17 @@ class StateAssembler:
             yaw_rate = self.odom.yaw_rate_radps
         else:
             yaw_rate = 0.0
+        dt = min(max(stamp_s - pose.stamp_s, 0.0), self.max_prediction_s)
+        # second-order (midpoint) unicycle prediction over dt
+        yaw_mid = pose.yaw_rad + 0.5 * yaw_rate * dt
+        x = pose.x_m + speed * math.cos(yaw_mid) * dt
+        y = pose.y_m + speed * math.sin(yaw_mid) * dt
+        yaw = math.remainder(pose.yaw_rad + yaw_rate * dt, 2 * math.pi)
         return State(
             stamp_s=stamp_s,
-            x_m=pose.x_m,
-            y_m=pose.y_m,
-            yaw_rad=pose.yaw_rad,
+            x_m=x,
+            y_m=y,
+            yaw_rad=yaw,
             speed_mps=speed,
             yaw_rate_radps=yaw_rate,
             steering_rad=steering,

@@ -100,11 +100,20 @@ class Simulator:
         p = self.params
         tau = p.steering_time_constant_s
         k_acc, k_brk = p.speed_gain_accel_per_s, p.speed_gain_brake_per_s
+        k_timeout = self.settings.timeout_brake_gain_per_s
 
-        def plant(s: StateTuple, v_target: float, d_target: float) -> StateTuple:
-            """Closed-loop derivative: the P-controllers' outputs into the model."""
+        def plant(
+            s: StateTuple, v_target: float, d_target: float, timed_out: bool = False
+        ) -> StateTuple:
+            """Closed-loop derivative: the P-controllers' outputs into the model.
+
+            With no fresh command (timed out) the speed loop brakes like a VESC's brake
+            current: a gain so high that the model's acceleration limit acts down to a
+            near standstill.
+            """
             sv = steering_control(d_target, s[_DELTA], tau)
-            return rhs(s, sv, speed_control(v_target, s[_V], k_acc, k_brk))
+            k_b = k_timeout if timed_out else k_brk
+            return rhs(s, sv, speed_control(v_target, s[_V], k_acc, k_b))
 
         return plant
 
@@ -218,7 +227,9 @@ class Simulator:
             hm = h / m
             for _ in range(m):
                 s_new, _slope = rk4_step(
-                    lambda z, vt=v_target, dt_=d_target: plant(z, vt, dt_), s, hm
+                    lambda z, vt=v_target, dt_=d_target, to=timed_out: plant(z, vt, dt_, to),
+                    s,
+                    hm,
                 )
                 s = self._sanitise(s_new, s, s_min, s_max, v_min, v_max)
             total += m

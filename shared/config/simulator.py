@@ -94,6 +94,13 @@ class SimulatorSettings(Section):
     command_timeout_s: float = Field(
         0.1, gt=0.0, le=10.0, description="brake when the newest command is older [s] (VESC)"
     )
+    timeout_brake_gain_per_s: float = Field(
+        60.0,
+        gt=0.0,
+        le=1000.0,
+        description="speed-loop gain [1/s] while braking for a command timeout (brake current: "
+        "the acceleration limit acts down to ~ a_max / gain m/s)",
+    )
     kinematic_below_mps: float = Field(
         0.5, gt=0.0, le=5.0, description="below this |v| the kinematic model applies [m/s]"
     )

@@ -1,0 +1,198 @@
+"""The simulator service: the vehicle stand-in on Zenoh, in real time.
+
+Consumes ``cmd/drive`` (and ``sim/control``: reset / pause / resume); publishes what the real
+car's drivers would: ``vehicle/pose`` (rear axle, as a lidar localiser gives it, with its
+rate and latency), ``vehicle/imu``, ``vehicle/odom``, ``vehicle/scan`` (2D lidar on the
+track's occupancy map), plus ``sim/truth`` and ``lap`` events for evaluation. Swapping the
+simulator for the car is configuration: the same keys come from the real drivers.
+
+Stamps are wall-clock seconds of the simulated capture instant (the simulation runs in real
+time, anchored to the wall clock at start), so other services judge message age as on the
+car. Without fresh commands for ``command_timeout_s`` the car brakes, like a VESC timeout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from services.simulator import LapTimer, SensorSuite, Simulator, StepResult
+from services.simulator.laps import centreline_pose
+from shared.bus import Bus, LatestSlot
+from shared.config import RacestackConfig
+from shared.messages import (
+    DriveCmd,
+    Imu,
+    LapEvent,
+    LogEvent,
+    Odom,
+    Pose,
+    Scan,
+    SimControl,
+    SimTruth,
+)
+from shared.service_shell import run_service
+from shared.track import OccupancyGrid, Track, load_ros_map, load_track, rasterize_track
+
+log = logging.getLogger(__name__)
+SERVICE = "simulator"
+#: Rate of ``sim/truth`` [Hz].
+TRUTH_RATE_HZ = 50.0
+#: Where the car starts: this far along from the start line [m] (behind it: timing starts
+#: at once and lap 1 is a standing-start lap).
+START_OFFSET_M = -0.3
+#: A loop iteration later than this behind real time is counted as an overrun [s].
+OVERRUN_S = 0.02
+
+
+def occupancy_for(track: Track) -> OccupancyGrid:
+    """The track's ROS map if its folder has one, else a grid rasterised from its boundaries."""
+    src = Path(track.source)
+    folder = src if src.is_dir() else src.parent
+    if src.exists():
+        maps = sorted(folder.glob("*.yaml"))
+        if maps:
+            return load_ros_map(maps[0])
+    return rasterize_track(track, resolution_m=0.05)
+
+
+class SimulatorService:
+    """The real-time loop; publishers are injected so the core stays testable."""
+
+    def __init__(self, cfg: RacestackConfig, bus: Bus, track: Track) -> None:
+        self.cfg = cfg
+        self.bus = bus
+        self.track = track
+        s = cfg.simulator
+        self.sim = Simulator(s)
+        grid = occupancy_for(track) if s.lidar.rate_hz > 0 else None
+        self.sensors = SensorSuite(s, grid)
+        veh = s.vehicle
+        self.timer = LapTimer(track, width_m=veh.width_m, length_m=veh.length_m)
+        k = bus.keys
+        self.pub_pose = bus.publisher(k.pose, Pose)
+        self.pub_imu = bus.publisher(k.imu, Imu)
+        self.pub_odom = bus.publisher(k.odom, Odom)
+        self.pub_scan = bus.publisher(k.scan, Scan)
+        self.pub_truth = bus.publisher(k.sim_truth, SimTruth)
+        self.pub_lap = bus.publisher(k.lap, LapEvent)
+        self.pub_log = bus.publisher(k.events_log, LogEvent)
+        self.commands: LatestSlot[DriveCmd] = LatestSlot()
+        self.controls = bus.subscribe(k.sim_control, SimControl, queue_size=16)
+        bus.subscribe(k.drive_cmd, DriveCmd, callback=self.commands.put)
+        self.t0_wall = time.time()
+        self.paused = False
+        self.overruns = 0
+        self._next_truth = 0.0
+        self.reset()
+
+    def stamp(self, t_sim: float) -> float:
+        """Wall-clock stamp [s] of simulation time `t_sim`."""
+        return self.t0_wall + t_sim
+
+    def reset(self) -> None:
+        """Put the car at rest just behind the start line."""
+        t = self.sim.t_s
+        self.sim.reset(centreline_pose(self.track, START_OFFSET_M), speed_mps=0.0, t_s=t)
+        self.sensors.reset()
+        self.timer.reset()
+        st = self.sim.state
+        self.timer.update(t, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
+        log.info("car reset to the start line")
+
+    def say(self, level: str, text: str) -> None:
+        """Log locally and on ``events/log``."""
+        getattr(log, level)(text)
+        self.pub_log.put(LogEvent(stamp_s=time.time(), level=level, source=SERVICE, text=text))
+
+    def handle_inputs(self) -> None:
+        """Apply the newest drive command and any control requests."""
+        cmd = self.commands.take()
+        if cmd is not None and not self.paused:
+            self.sim.set_command(cmd.speed_mps, cmd.steering_rad, self.sim.t_s)
+        for ctl in self.controls.drain():
+            if ctl.action == "reset":
+                self.reset()
+            elif ctl.action == "pause":
+                self.paused = True
+            elif ctl.action == "resume":
+                self.paused = False
+
+    def publish(self, res: StepResult) -> None:
+        """Sensors, truth and lap events of one step."""
+        readings = self.sensors.update(res)
+        for m in readings.pose:
+            self.pub_pose.put(Pose(stamp_s=self.stamp(m.stamp_s), x_m=m.x_m, y_m=m.y_m,
+                                   yaw_rad=m.yaw_rad, cov=None))
+        for m in readings.imu:
+            self.pub_imu.put(Imu(stamp_s=self.stamp(m.stamp_s), yaw_rate_radps=m.yaw_rate_radps,
+                                 ax_mps2=m.accel_long_mps2, ay_mps2=m.accel_lat_mps2))
+        for m in readings.odometry:
+            self.pub_odom.put(Odom(stamp_s=self.stamp(m.stamp_s), speed_mps=m.speed_mps,
+                                   steering_rad=m.steering_rad, yaw_rate_radps=None))
+        for m in readings.scans:
+            self.pub_scan.put(Scan(stamp_s=self.stamp(m.stamp_s), angle_min_rad=m.angle_min_rad,
+                                   angle_increment_rad=m.angle_increment_rad,
+                                   ranges_m=np.asarray(m.ranges_m, dtype=np.float32)))
+        st = res.state
+        for ev in self.timer.update(res.t_s, st.x_m, st.y_m, st.yaw_rad, st.v_mps):
+            self.pub_lap.put(LapEvent(
+                stamp_s=self.stamp(ev.t_s), kind=ev.kind, lap=ev.lap,
+                lap_time_s=ev.lap_time_s, mean_speed_mps=ev.mean_speed_mps,
+                off_track_events=ev.off_track_events, max_abs_e_con_m=ev.max_abs_e_con_m))
+            if ev.kind == "lap":
+                log.info("lap %d: %.3f s", ev.lap, ev.lap_time_s or 0.0)
+            elif ev.kind == "off_track":
+                self.say("warning", f"off track at s = {ev.s_m:.1f} m")
+        if res.t_s + 1e-9 >= self._next_truth:
+            self._next_truth = res.t_s + 1.0 / TRUTH_RATE_HZ
+            self.pub_truth.put(SimTruth(
+                stamp_s=self.stamp(res.t_s), x_m=st.x_m, y_m=st.y_m,
+                yaw_rad=math.remainder(st.yaw_rad, 2 * math.pi), speed_mps=st.v_mps,
+                yaw_rate_radps=st.yaw_rate_radps, slip_rad=st.slip_rad,
+                steering_rad=st.delta_rad, s_m=self.timer.s_m, e_con_m=self.timer.e_con_m,
+                off_track=self.timer.off_track, lap=self.timer.laps_completed))
+
+    def run(self, stop: threading.Event) -> None:
+        """Step the car in real time until `stop` is set."""
+        h = self.cfg.simulator.integration_step_s
+        self.t0_wall = time.time() - self.sim.t_s
+        t0_mono = time.monotonic() - self.sim.t_s
+        while not stop.is_set():
+            self.handle_inputs()
+            if self.paused:
+                stop.wait(h)
+                t0_mono += h
+                self.t0_wall += h
+                continue
+            res = self.sim.step(None, h)
+            self.publish(res)
+            delay = t0_mono + self.sim.t_s - time.monotonic()
+            if delay > 0:
+                stop.wait(delay)
+            elif delay < -OVERRUN_S:
+                self.overruns += 1
+
+
+def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
+    """The service body."""
+    track = load_track(cfg.track.source)
+    with Bus(cfg.bus, SERVICE) as bus:
+        svc = SimulatorService(cfg, bus, track)
+        log.info("simulating %s (%.2f m) in real time; waiting for %s", track.name,
+                 track.length_m, bus.keys.drive_cmd)
+        svc.run(stop)
+        log.info("stopping (%d real-time overruns)", svc.overruns)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m services.simulator``."""
+    return run_service(SERVICE, argv, run, description=__doc__.splitlines()[0])
