@@ -616,3 +616,51 @@ class Bus:
     def missing_alive(self, services: Iterable[str]) -> set[str]:
         """The services of `services` whose token is not seen now."""
         return set(services) - self.alive()
+
+
+class DropReporter:
+    """Publishes a service's rejected-message counts on ``events/log`` when they grow.
+
+    Call ``poll()`` from the service's loop; at most once per ``period_s`` it compares the
+    bus's ``DropCounter`` with the last report and, if anything was dropped since, publishes
+    one warning ``LogEvent`` such as ``rejected 3 messages (total 7): racestack/car0/state
+    decode_error x3``. This makes the counts visible to telemetry, tests and operators.
+    """
+
+    def __init__(
+        self,
+        bus: Bus,
+        service: str,
+        period_s: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        from shared.messages import LogEvent
+
+        self._bus = bus
+        self._service = service
+        self._period = period_s
+        self._clock = clock
+        self._pub = bus.publisher(bus.keys.events_log, LogEvent)
+        self._event = LogEvent
+        self._last: dict[tuple[str, str], int] = {}
+        self._next = 0.0
+        self.reports = 0
+
+    def poll(self) -> bool:
+        """Report new drops if due; True when a report was published."""
+        now = self._clock()
+        if now < self._next:
+            return False
+        self._next = now + self._period
+        snap = self._bus.drops.snapshot()
+        new = {kr: n - self._last.get(kr, 0) for kr, n in snap.items() if n > self._last.get(kr, 0)}
+        if not new:
+            return False
+        self._last = snap
+        parts = ", ".join(f"{k} {r} x{n}" for (k, r), n in sorted(new.items()))
+        text = f"rejected {sum(new.values())} messages (total {sum(snap.values())}): {parts}"
+        self._pub.put(
+            self._event(stamp_s=time.time(), level="warning", source=self._service, text=text[:900])
+        )
+        self.reports += 1
+        return True

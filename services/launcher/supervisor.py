@@ -84,6 +84,13 @@ class Supervisor:
         log.info("started %s (pid %d)", name, proc.pid)
         return child
 
+    def forget(self, child: Child) -> None:
+        """Stop watching a child that has exited (e.g. one deliberately stopped)."""
+        if child.exit_code() is None:
+            raise ValueError(f"{child.name} (pid {child.pid}) is still running")
+        with self._lock:
+            self.children = [c for c in self.children if c is not child]
+
     def dead(self) -> list[Child]:
         """Children that have exited."""
         return [c for c in self.children if c.exit_code() is not None]

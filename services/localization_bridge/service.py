@@ -10,7 +10,7 @@ import time
 from collections.abc import Sequence
 
 from services.localization_bridge.fusion import StateAssembler
-from shared.bus import Bus
+from shared.bus import Bus, DropReporter
 from shared.config import RacestackConfig
 from shared.messages import Imu, Odom, Pose, State
 from shared.service_shell import run_service
@@ -27,9 +27,11 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
         poses = bus.subscribe(bus.keys.pose, Pose)
         bus.subscribe(bus.keys.odom, Odom, callback=core.on_odom)
         bus.subscribe(bus.keys.imu, Imu, callback=core.on_imu)
+        drops = DropReporter(bus, SERVICE)
         log.info("ready; waiting for %s", bus.keys.pose)
         got_first = False
         while not stop.is_set():
+            drops.poll()
             pose = poses.wait(timeout_s=0.2)
             if pose is None:
                 continue

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from services.planner.planner import BRAKING, SOLVED, Planner, SolveResult
-from shared.bus import Bus
+from shared.bus import Bus, DropReporter
 from shared.config import RacestackConfig
 from shared.messages import DriveCmd, LogEvent, Plan, State
 from shared.service_shell import run_service
@@ -63,6 +63,7 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
         cmd_pub = bus.publisher(bus.keys.drive_cmd, DriveCmd)
         plan_pub = bus.publisher(bus.keys.plan, Plan)
         log_pub = bus.publisher(bus.keys.events_log, LogEvent)
+        drops = DropReporter(bus, SERVICE)
 
         def say(level: str, text: str) -> None:
             getattr(log, level if level != "warning" else "warning")(text)
@@ -74,6 +75,7 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
         braking = True
         steering = 0.0
         while not stop.is_set():
+            drops.poll()
             st = states.wait(timeout_s=period)
             now_wall = time.time()
             if st is not None:

@@ -25,7 +25,7 @@ import numpy as np
 
 from services.simulator import LapTimer, SensorSuite, Simulator, StepResult
 from services.simulator.laps import centreline_pose
-from shared.bus import Bus, LatestSlot
+from shared.bus import Bus, DropReporter, LatestSlot
 from shared.config import RacestackConfig
 from shared.messages import (
     DriveCmd,
@@ -87,6 +87,7 @@ class SimulatorService:
         self.commands: LatestSlot[DriveCmd] = LatestSlot()
         self.controls = bus.subscribe(k.sim_control, SimControl, queue_size=16)
         bus.subscribe(k.drive_cmd, DriveCmd, callback=self.commands.put)
+        self.drops = DropReporter(bus, SERVICE)
         self.t0_wall = time.time()
         self.paused = False
         self.overruns = 0
@@ -129,36 +130,73 @@ class SimulatorService:
         """Sensors, truth and lap events of one step."""
         readings = self.sensors.update(res)
         for m in readings.pose:
-            self.pub_pose.put(Pose(stamp_s=self.stamp(m.stamp_s), x_m=m.x_m, y_m=m.y_m,
-                                   yaw_rad=m.yaw_rad, cov=None))
+            self.pub_pose.put(
+                Pose(
+                    stamp_s=self.stamp(m.stamp_s), x_m=m.x_m, y_m=m.y_m, yaw_rad=m.yaw_rad, cov=None
+                )
+            )
         for m in readings.imu:
-            self.pub_imu.put(Imu(stamp_s=self.stamp(m.stamp_s), yaw_rate_radps=m.yaw_rate_radps,
-                                 ax_mps2=m.accel_long_mps2, ay_mps2=m.accel_lat_mps2))
+            self.pub_imu.put(
+                Imu(
+                    stamp_s=self.stamp(m.stamp_s),
+                    yaw_rate_radps=m.yaw_rate_radps,
+                    ax_mps2=m.accel_long_mps2,
+                    ay_mps2=m.accel_lat_mps2,
+                )
+            )
         for m in readings.odometry:
-            self.pub_odom.put(Odom(stamp_s=self.stamp(m.stamp_s), speed_mps=m.speed_mps,
-                                   steering_rad=m.steering_rad, yaw_rate_radps=None))
+            self.pub_odom.put(
+                Odom(
+                    stamp_s=self.stamp(m.stamp_s),
+                    speed_mps=m.speed_mps,
+                    steering_rad=m.steering_rad,
+                    yaw_rate_radps=None,
+                )
+            )
         for m in readings.scans:
-            self.pub_scan.put(Scan(stamp_s=self.stamp(m.stamp_s), angle_min_rad=m.angle_min_rad,
-                                   angle_increment_rad=m.angle_increment_rad,
-                                   ranges_m=np.asarray(m.ranges_m, dtype=np.float32)))
+            self.pub_scan.put(
+                Scan(
+                    stamp_s=self.stamp(m.stamp_s),
+                    angle_min_rad=m.angle_min_rad,
+                    angle_increment_rad=m.angle_increment_rad,
+                    ranges_m=np.asarray(m.ranges_m, dtype=np.float32),
+                )
+            )
         st = res.state
         for ev in self.timer.update(res.t_s, st.x_m, st.y_m, st.yaw_rad, st.v_mps):
-            self.pub_lap.put(LapEvent(
-                stamp_s=self.stamp(ev.t_s), kind=ev.kind, lap=ev.lap,
-                lap_time_s=ev.lap_time_s, mean_speed_mps=ev.mean_speed_mps,
-                off_track_events=ev.off_track_events, max_abs_e_con_m=ev.max_abs_e_con_m))
+            self.pub_lap.put(
+                LapEvent(
+                    stamp_s=self.stamp(ev.t_s),
+                    kind=ev.kind,
+                    lap=ev.lap,
+                    lap_time_s=ev.lap_time_s,
+                    mean_speed_mps=ev.mean_speed_mps,
+                    off_track_events=ev.off_track_events,
+                    max_abs_e_con_m=ev.max_abs_e_con_m,
+                )
+            )
             if ev.kind == "lap":
                 log.info("lap %d: %.3f s", ev.lap, ev.lap_time_s or 0.0)
             elif ev.kind == "off_track":
                 self.say("warning", f"off track at s = {ev.s_m:.1f} m")
         if res.t_s + 1e-9 >= self._next_truth:
             self._next_truth = res.t_s + 1.0 / TRUTH_RATE_HZ
-            self.pub_truth.put(SimTruth(
-                stamp_s=self.stamp(res.t_s), x_m=st.x_m, y_m=st.y_m,
-                yaw_rad=math.remainder(st.yaw_rad, 2 * math.pi), speed_mps=st.v_mps,
-                yaw_rate_radps=st.yaw_rate_radps, slip_rad=st.slip_rad,
-                steering_rad=st.delta_rad, s_m=self.timer.s_m, e_con_m=self.timer.e_con_m,
-                off_track=self.timer.off_track, lap=self.timer.laps_completed))
+            self.pub_truth.put(
+                SimTruth(
+                    stamp_s=self.stamp(res.t_s),
+                    x_m=st.x_m,
+                    y_m=st.y_m,
+                    yaw_rad=math.remainder(st.yaw_rad, 2 * math.pi),
+                    speed_mps=st.v_mps,
+                    yaw_rate_radps=st.yaw_rate_radps,
+                    slip_rad=st.slip_rad,
+                    steering_rad=st.delta_rad,
+                    s_m=self.timer.s_m,
+                    e_con_m=self.timer.e_con_m,
+                    off_track=self.timer.off_track,
+                    lap=self.timer.laps_completed,
+                )
+            )
 
     def run(self, stop: threading.Event) -> None:
         """Step the car in real time until `stop` is set."""
@@ -166,6 +204,7 @@ class SimulatorService:
         self.t0_wall = time.time() - self.sim.t_s
         t0_mono = time.monotonic() - self.sim.t_s
         while not stop.is_set():
+            self.drops.poll()
             self.handle_inputs()
             if self.paused:
                 stop.wait(h)
@@ -186,8 +225,12 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     track = load_track(cfg.track.source)
     with Bus(cfg.bus, SERVICE) as bus:
         svc = SimulatorService(cfg, bus, track)
-        log.info("simulating %s (%.2f m) in real time; waiting for %s", track.name,
-                 track.length_m, bus.keys.drive_cmd)
+        log.info(
+            "simulating %s (%.2f m) in real time; waiting for %s",
+            track.name,
+            track.length_m,
+            bus.keys.drive_cmd,
+        )
         svc.run(stop)
         log.info("stopping (%d real-time overruns)", svc.overruns)
     return 0
