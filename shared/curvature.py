@@ -111,8 +111,16 @@ class CurvatureProfile:
 
     def nsc_at(self, s: np.ndarray | float) -> np.ndarray:
         """NSC at arc length(s) `s` [m] (periodic, linear interpolation)."""
-        s_cl = np.append(self.s_m, self.length_m)
-        return np.interp(np.mod(s, self.length_m), s_cl, np.append(self.nsc, self.nsc[0]))
+        s_cl, nsc_cl = self._closed
+        return np.interp(np.mod(s, self.length_m), s_cl, nsc_cl)
+
+    @property
+    def _closed(self) -> tuple[np.ndarray, np.ndarray]:
+        cached = self.__dict__.get("_closed_cache")
+        if cached is None:
+            cached = (np.append(self.s_m, self.length_m), np.append(self.nsc, self.nsc[0]))
+            object.__setattr__(self, "_closed_cache", cached)
+        return cached
 
     def beta_at(self, s: np.ndarray | float) -> np.ndarray:
         """beta = g(NSC(s)) at arc length(s) `s` [m]."""

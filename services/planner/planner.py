@@ -25,6 +25,9 @@ from shared.track import Track
 
 #: Status of a result: a fresh solution, the shifted previous plan, or a braking command.
 SOLVED, FALLBACK, BRAKING = "solved", "fallback", "braking"
+#: Half-width of the arc-length window searched around the previous projection [m]
+#: (0.5 s at 10 m/s; a pose jump beyond it is found again by a full search next tick).
+PROJECTION_WINDOW_M = 5.0
 #: Speed [m/s] of the rollout that seeds the very first solve.
 INITIAL_GUESS_SPEED_MPS = 1.0
 
@@ -136,7 +139,9 @@ class Planner:
         N = pr.horizon
         if not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad)):
             return self._failed(np.zeros(NU + 1), 0.0, 0.0, "non-finite pose", 0, 0.0, None)
-        s0, e0 = self.track.project(np.array([x_m, y_m]), s_hint=self._s_prev)
+        s0, e0 = self.track.project(
+            np.array([x_m, y_m]), s_hint=self._s_prev, window_m=PROJECTION_WINDOW_M
+        )
         s0, e0 = float(s0), float(e0)
         self._s_prev = s0
         x0 = np.empty(len(XA))

@@ -64,6 +64,14 @@ class ParamLayout:
 
     horizon: int
 
+    def __post_init__(self) -> None:
+        out, i = {}, 0
+        for name, n in self.sizes.items():
+            out[name] = slice(i, i + n)
+            i += n
+        object.__setattr__(self, "_slices", out)
+        object.__setattr__(self, "_size", i)
+
     @property
     def sizes(self) -> dict[str, int]:
         """Size of each named parameter block."""
@@ -85,16 +93,12 @@ class ParamLayout:
     @property
     def slices(self) -> dict[str, slice]:
         """Slice of each named block in ``p``."""
-        out, i = {}, 0
-        for name, n in self.sizes.items():
-            out[name] = slice(i, i + n)
-            i += n
-        return out
+        return self._slices  # type: ignore[attr-defined]
 
     @property
     def size(self) -> int:
         """Length of ``p``."""
-        return sum(self.sizes.values())
+        return self._size  # type: ignore[attr-defined]
 
     def split(self, p: ca.SX) -> dict[str, ca.SX]:
         """Symbolic blocks of ``p`` by name."""
@@ -172,20 +176,17 @@ class OcpProblem:
         return slice(i, i + NUA)
 
     def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(states (N+1, 7), inputs (N, 4)) from a decision vector."""
+        """(states (N+1, 7), inputs (N, 4)) from a decision vector (copies)."""
         w = np.asarray(w, dtype=float).reshape(-1)
-        xs = np.stack([w[self.state_index(k)] for k in range(self.horizon + 1)])
-        us = np.stack([w[self.input_index(k)] for k in range(self.horizon)])
-        return xs, us
+        n = self.horizon * (NXA + NUA)
+        stages = w[:n].reshape(self.horizon, NXA + NUA)
+        xs = np.vstack([stages[:, :NXA], w[n:][None, :]])
+        return xs, stages[:, NXA:].copy()
 
     def pack(self, xs: np.ndarray, us: np.ndarray) -> np.ndarray:
         """Decision vector from (states (N+1, 7), inputs (N, 4))."""
-        w = np.empty(self.n_w)
-        for k in range(self.horizon):
-            w[self.state_index(k)] = xs[k]
-            w[self.input_index(k)] = us[k]
-        w[self.state_index(self.horizon)] = xs[self.horizon]
-        return w
+        stages = np.hstack([xs[: self.horizon], us])
+        return np.concatenate([stages.ravel(), xs[self.horizon]])
 
 
 def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:

@@ -44,6 +44,7 @@ class Track:
     s_m: np.ndarray = field(init=False, repr=False)
     length_m: float = field(init=False)
     heading_rad: np.ndarray = field(init=False, repr=False)
+    _closed: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         xy = np.ascontiguousarray(self.xy, dtype=float)
@@ -64,6 +65,17 @@ class Track:
             if isinstance(value, np.ndarray):
                 value.setflags(write=False)
             object.__setattr__(self, name, value)
+        closed = (
+            np.append(s, self.length_m),
+            np.append(xy[:, 0], xy[0, 0]),
+            np.append(xy[:, 1], xy[0, 1]),
+            np.unwrap(np.append(self.heading_rad, self.heading_rad[0])),
+            np.append(w_r, w_r[0]),
+            np.append(w_l, w_l[0]),
+        )
+        for arr in closed:
+            arr.setflags(write=False)
+        object.__setattr__(self, "_closed", closed)
 
     # ------------------------------------------------------------------ basic geometry
     @property
@@ -110,19 +122,13 @@ class Track:
 
     def closed_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(s, x, y, phi) with the first point repeated at s = length_m and phi unwrapped."""
-        s = np.append(self.s_m, self.length_m)
-        x = np.append(self.xy[:, 0], self.xy[0, 0])
-        y = np.append(self.xy[:, 1], self.xy[0, 1])
-        phi = np.unwrap(np.append(self.heading_rad, self.heading_rad[0]))
-        return s, x, y, phi
+        return self._closed[:4]
 
     def interp_width(self, s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """(w_right, w_left) [m] linearly interpolated at arc length(s) `s` (wrapped)."""
-        s_cl, *_ = self.closed_arrays()
+        s_cl, _, _, _, w_r_cl, w_l_cl = self._closed
         sw = np.mod(s, self.length_m)
-        w_r = np.interp(sw, s_cl, np.append(self.w_right_m, self.w_right_m[0]))
-        w_l = np.interp(sw, s_cl, np.append(self.w_left_m, self.w_left_m[0]))
-        return w_r, w_l
+        return np.interp(sw, s_cl, w_r_cl), np.interp(sw, s_cl, w_l_cl)
 
     def point_at(self, s: np.ndarray | float) -> np.ndarray:
         """Centreline point(s) [m] at arc length `s` (piecewise linear), shape (..., 2)."""
