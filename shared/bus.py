@@ -633,14 +633,17 @@ class DropReporter:
         service: str,
         period_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
+        publisher: TypedPublisher[Any] | None = None,
     ) -> None:
+        """`publisher`: the service's own ``events/log`` publisher, so one sequence of
+        numbers covers all its log records (None: declare one)."""
         from shared.messages import LogEvent
 
         self._bus = bus
         self._service = service
         self._period = period_s
         self._clock = clock
-        self._pub = bus.publisher(bus.keys.events_log, LogEvent)
+        self._pub = publisher or bus.publisher(bus.keys.events_log, LogEvent)
         self._event = LogEvent
         self._last: dict[tuple[str, str], int] = {}
         self._next = 0.0

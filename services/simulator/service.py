@@ -25,6 +25,7 @@ import numpy as np
 
 from services.simulator import LapTimer, SensorSuite, Simulator, StepResult
 from services.simulator.laps import centreline_pose
+from services.simulator.vesc_actuation import VescActuation
 from shared.bus import Bus, DropReporter, LatestSlot
 from shared.config import RacestackConfig
 from shared.messages import (
@@ -86,8 +87,13 @@ class SimulatorService:
         self.pub_log = bus.publisher(k.events_log, LogEvent)
         self.commands: LatestSlot[DriveCmd] = LatestSlot()
         self.controls = bus.subscribe(k.sim_control, SimControl, queue_size=16)
-        bus.subscribe(k.drive_cmd, DriveCmd, callback=self.commands.put)
-        self.drops = DropReporter(bus, SERVICE)
+        #: actuation = "fake_vesc": commands come from the vesc_driver's serial frames
+        self.vesc: VescActuation | None = None
+        if s.actuation == "fake_vesc":
+            self.vesc = VescActuation(s.fake_vesc_link, cfg.vesc)
+        else:
+            bus.subscribe(k.drive_cmd, DriveCmd, callback=self.commands.put)
+        self.drops = DropReporter(bus, SERVICE, publisher=self.pub_log)
         self.t0_wall = time.time()
         self.paused = False
         self.overruns = 0
@@ -115,7 +121,11 @@ class SimulatorService:
 
     def handle_inputs(self) -> None:
         """Apply the newest drive command and any control requests."""
-        cmd = self.commands.take()
+        if self.vesc is not None:
+            st = self.sim.state
+            cmd = self.vesc.update(st.v_mps * math.cos(st.slip_rad))
+        else:
+            cmd = self.commands.take()
         if cmd is not None and not self.paused:
             self.sim.set_command(cmd.speed_mps, cmd.steering_rad, self.sim.t_s)
         for ctl in self.controls.drain():
@@ -144,7 +154,7 @@ class SimulatorService:
                     ay_mps2=m.accel_lat_mps2,
                 )
             )
-        for m in readings.odometry:
+        for m in readings.odometry if self.vesc is None else ():  # else the vesc_driver's
             self.pub_odom.put(
                 Odom(
                     stamp_s=self.stamp(m.stamp_s),
@@ -198,6 +208,11 @@ class SimulatorService:
                 )
             )
 
+    def close(self) -> None:
+        """Stop the fake VESC (actuation = "fake_vesc")."""
+        if self.vesc is not None:
+            self.vesc.close()
+
     def run(self, stop: threading.Event) -> None:
         """Step the car in real time until `stop` is set."""
         h = self.cfg.simulator.integration_step_s
@@ -225,14 +240,17 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     track = load_track(cfg.track.source)
     with Bus(cfg.bus, SERVICE) as bus:
         svc = SimulatorService(cfg, bus, track)
-        log.info(
-            "simulating %s (%.2f m) in real time; waiting for %s",
-            track.name,
-            track.length_m,
-            bus.keys.drive_cmd,
-        )
-        svc.run(stop)
-        log.info("stopping (%d real-time overruns)", svc.overruns)
+        try:
+            log.info(
+                "simulating %s (%.2f m) in real time; waiting for %s",
+                track.name,
+                track.length_m,
+                bus.keys.drive_cmd if svc.vesc is None else f"a vesc_driver on {svc.vesc.path}",
+            )
+            svc.run(stop)
+            log.info("stopping (%d real-time overruns)", svc.overruns)
+        finally:
+            svc.close()
     return 0
 
 

@@ -18,6 +18,7 @@ from shared.config.base import ConfigError, Section
 from shared.config.bus import BusSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
 from shared.config.simulator import SimulatorSettings
+from shared.config.telemetry import TelemetrySettings
 from shared.config.vesc import VescSettings
 
 
@@ -36,6 +37,7 @@ class RacestackConfig(Section):
     bus: BusSettings = BusSettings()
     simulator: SimulatorSettings = SimulatorSettings()
     vesc: VescSettings = VescSettings()
+    telemetry: TelemetrySettings = TelemetrySettings()
 
 
 def _format_errors(source: str, exc: ValidationError) -> str:

@@ -72,6 +72,14 @@ class SimulatorSettings(Section):
     at 10 ms). Then the speed and servo P-controllers of `vehicle` act. If no command newer
     than `command_timeout_s` has arrived (after the delay), the speed target is 0 (brake) and
     the servo holds its last target, like a VESC timeout.
+
+    Where commands come from (`actuation`): "bus" (default) takes ``DriveCmd`` from
+    ``cmd/drive``. "fake_vesc" runs the real actuation chain in simulation: the simulator
+    owns a fake VESC on a pseudo-terminal reachable at the stable symlink `fake_vesc_link`,
+    the vesc_driver service's ``[vesc] port`` points at that same path, and the car is driven
+    by the SET_RPM / SET_SERVO_POS / brake frames the driver writes (converted back with the
+    ``[vesc]`` gains); GET_VALUES is answered with the simulated wheel speed as ERPM, so the
+    vesc_driver's ``vehicle/odom`` is the odometry (the simulator then publishes none).
     """
 
     vehicle: DynamicVehicleParams = DynamicVehicleParams()
@@ -110,6 +118,18 @@ class SimulatorSettings(Section):
         le=5.0,
         description="width of the smooth kinematic -> dynamic blend above kinematic_below_mps "
         "[m/s]; 0 switches hard like the gym",
+    )
+    actuation: Literal["bus", "fake_vesc"] = Field(
+        "bus",
+        description='"bus": commands from cmd/drive; "fake_vesc": from the frames a '
+        "vesc_driver writes to the simulator's fake VESC at fake_vesc_link",
+    )
+    fake_vesc_link: str = Field(
+        "/tmp/racestack-fake-vesc",
+        min_length=1,
+        description="symlink the simulator points at its fake VESC's pty (actuation = "
+        '"fake_vesc"); set [vesc] port to the same path. An existing symlink there is '
+        "replaced, any other file is an error",
     )
     pose: PoseSensorSettings = PoseSensorSettings()
     imu: ImuSettings = ImuSettings()

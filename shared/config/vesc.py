@@ -76,6 +76,21 @@ class VescSettings(Section):
     max_payload_bytes: int = Field(
         512, ge=80, le=65535, description="longest reply payload accepted by the decoder"
     )
+    write_on_command: bool = Field(
+        True,
+        description=(
+            "the Zenoh shell writes a newly received command to the port at once (at most "
+            "one such extra write per 5 ms) instead of waiting for the next fixed-rate tick; "
+            "the fixed-rate frames are sent either way"
+        ),
+    )
+    event_interval_s: float = Field(
+        2.0,
+        gt=0.0,
+        le=3600.0,
+        allow_inf_nan=False,
+        description="shortest interval between two events/log records of one kind [s]",
+    )
     invalid_command: Literal["brake", "clamp"] = Field(
         "clamp",
         description=(

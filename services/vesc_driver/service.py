@@ -1,0 +1,584 @@
+"""The VESC driver service: ``cmd/drive`` in, VESC serial frames out, over Zenoh.
+
+``python -m services.vesc_driver --config FILE`` (or ``racestack run vesc_driver``). The
+serial port is ``[vesc] port``; with no port present the service keeps running and retries
+(``SerialLink`` back-off), it never exits for a missing or vanished device.
+
+Threads:
+
+* Zenoh's callback thread: each valid ``DriveCmd`` goes to ``VescDriver.on_command`` (a
+  lock held for microseconds) and, with ``[vesc] write_on_command``, wakes the driver thread
+  through a pipe. It never blocks.
+* the driver thread (``VescService.run_driver``): the serial loop. It ticks the driver at
+  ``command_rate_hz`` (motor frames, ALIVE, GET_VALUES), runs an extra tick when the command
+  watchdog expires (so the brake follows the last command by ``command_timeout_s`` plus
+  scheduling delay), and - with ``write_on_command`` - an extra tick right after a new
+  command (at most one such extra write per ``MIN_COMMAND_WRITE_GAP_S``), so a command
+  reaches the wire without waiting up to one period. Between ticks it sleeps in ``select``
+  on the serial port and the wake pipe, decoding GET_VALUES replies as they arrive (their
+  stamps are the decode time). It does no bus I/O: tick results and events go to a bounded
+  out-box.
+* the main thread (``VescService.serve``): publishes the out-box - ``vesc/state`` and
+  ``vehicle/odom`` for every reply (at the tick after its decode, at most one period later,
+  stamped with the decode time in wall-clock seconds), ``events/log`` for port lost / back,
+  watchdog braking / commands resumed, invalid commands, invalid bus payloads (the bus's
+  ``DropCounter`` grew: ``shared.bus.DropReporter``) and reply values the messages reject.
+  Every kind of event is rate-limited to one per ``[vesc] event_interval_s`` (suppressed ones
+  are counted into the next). While no reply arrives it publishes a status-only
+  ``vesc/state`` (all values None) every ``STATUS_ONLY_INTERVAL_S``.
+
+On SIGINT/SIGTERM the driver thread writes one brake frame, closes the port, and the main
+thread then closes the Zenoh session.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import logging
+import math
+import os
+import select
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from services.vesc_driver.driver import OdometryRecord, TickResult, VescDriver, VescStateRecord
+from services.vesc_driver.protocol import encode_set_current_brake
+from services.vesc_driver.serial_link import LinkState, SerialLink, default_serial_factory
+from services.vesc_driver.values import VescValues
+from services.vesc_driver.watchdog import WatchdogState
+from shared.bus import Bus, DropOldestQueue, DropReporter
+from shared.config import RacestackConfig
+from shared.config.vesc import VescSettings
+from shared.messages import DriveCmd, LogEvent, MessageError, Odom, VescState
+from shared.messages.codec import Spec, field_specs
+from shared.service_shell import run_service
+
+log = logging.getLogger(__name__)
+SERVICE = "vesc_driver"
+
+#: Shortest interval between two extra writes triggered by new commands [s] (<= 200 Hz).
+MIN_COMMAND_WRITE_GAP_S = 0.005
+#: Slack added to timed waits so a wake-up is not a hair early [s].
+WAKE_SLACK_S = 0.0005
+#: Longest a serial write may block [s].
+WRITE_TIMEOUT_S = 0.05
+#: Period of a status-only ``vesc/state`` while no GET_VALUES reply arrives [s].
+STATUS_ONLY_INTERVAL_S = 0.5
+#: Period of the main thread's counter checks (drops, invalid commands) [s].
+CHECK_PERIOD_S = 0.1
+#: Period of the local "still waiting for ..." log lines [s].
+WAITING_LOG_INTERVAL_S = 10.0
+#: Size of the out-box between the driver thread and the publisher (oldest dropped).
+OUTBOX_SIZE = 512
+#: Wait for the driver thread to end after stop [s].
+JOIN_TIMEOUT_S = 3.0
+
+#: VescState fields filled from ``VescValues`` (same names), with their validation specs.
+_STATE_FIELDS: tuple[tuple[str, Spec], ...] = tuple(
+    (name, spec)
+    for name, spec, _ in field_specs(VescState)
+    if name not in ("stamp_s", "seq", "status")
+)
+_ODOM_SPECS: dict[str, Spec] = {name: spec for name, spec, _ in field_specs(Odom)}
+
+
+# --------------------------------------------------------------------------- conversions
+def vesc_state_message(
+    values: VescValues | None, status: str, stamp_s: float
+) -> tuple[VescState, tuple[str, ...]]:
+    """The ``vesc/state`` record of one GET_VALUES reply (or a status-only one).
+
+    Args:
+        values: the parsed reply (None: every value None, only the status).
+        status: the link status, "ok" | "fault" | "stale" | "disconnected".
+        stamp_s: wall-clock stamp [s] of the reply.
+
+    Returns:
+        the record, and the names of the fields left None because the message rejects
+        their value (e.g. negative amp hours, a temperature beyond its range).
+    """
+    kwargs: dict[str, Any] = {}
+    skipped: list[str] = []
+    for name, spec in _STATE_FIELDS:
+        value = getattr(values, name, None) if values is not None else None
+        if value is not None:
+            try:
+                spec.check(f"VescState.{name}", value)
+            except MessageError:
+                skipped.append(name)
+                value = None
+        kwargs[name] = value
+    return VescState(stamp_s=stamp_s, status=status, **kwargs), tuple(skipped)
+
+
+def odom_message(rec: OdometryRecord, stamp_s: float) -> tuple[Odom | None, tuple[str, ...]]:
+    """The ``vehicle/odom`` record of one reply's odometry.
+
+    Speed [m/s] or steering [rad] outside the message's limits -> no record; a yaw rate
+    [rad/s] outside them -> ``yaw_rate_radps`` None. Returns the record (or None) and the
+    names of the rejected fields.
+    """
+    bad: list[str] = []
+    for name, value in (("speed_mps", rec.speed_mps), ("steering_rad", rec.steering_rad)):
+        try:
+            _ODOM_SPECS[name].check(f"Odom.{name}", value)
+        except MessageError:
+            bad.append(name)
+    if bad:
+        return None, tuple(bad)
+    yaw_rate: float | None = rec.yaw_rate_radps
+    try:
+        _ODOM_SPECS["yaw_rate_radps"].check("Odom.yaw_rate_radps", yaw_rate)
+    except MessageError:
+        bad.append("yaw_rate_radps")
+        yaw_rate = None
+    odom = Odom(
+        stamp_s=stamp_s,
+        speed_mps=rec.speed_mps,
+        steering_rad=rec.steering_rad,
+        yaw_rate_radps=yaw_rate,
+    )
+    return odom, tuple(bad)
+
+
+# --------------------------------------------------------------------------- rate limits
+class EpisodeLimiter:
+    """Rate limit of start/end event pairs (port lost/back, braking/resumed).
+
+    A start is reported when ``interval_s`` [s] passed since the last reported start, else
+    it is suppressed and counted; its end is reported only if its start was, so the last
+    reported line always tells the current state.
+    """
+
+    def __init__(self, interval_s: float) -> None:
+        self.interval_s = interval_s
+        self._last_s = -math.inf
+        self._open_reported = False
+        self.suppressed = 0  #: starts suppressed since the last reported one
+
+    def start(self, now: float) -> int | None:
+        """A start at ``now`` [s]: the number of suppressed starts before it if it is to be
+        reported (they are then cleared), or None when this one is suppressed."""
+        if now - self._last_s >= self.interval_s:
+            self._last_s = now
+            self._open_reported = True
+            n, self.suppressed = self.suppressed, 0
+            return n
+        self._open_reported = False
+        self.suppressed += 1
+        return None
+
+    def end(self) -> bool:
+        """The matching end: True if it is to be reported."""
+        reported, self._open_reported = self._open_reported, False
+        return reported
+
+
+class GrowthLimiter:
+    """Reports a growing total at most every ``interval_s`` [s] (the first growth at once)."""
+
+    def __init__(self, interval_s: float) -> None:
+        self.interval_s = interval_s
+        self._last_s = -math.inf
+        self.reported = 0  #: the total of the last report
+
+    def check(self, total: int, now: float) -> bool:
+        """True when ``total`` grew since the last report and the interval has passed."""
+        if total > self.reported and now - self._last_s >= self.interval_s:
+            self._last_s = now
+            self.reported = total
+            return True
+        return False
+
+
+# --------------------------------------------------------------------------- out-box items
+@dataclass(frozen=True, slots=True)
+class _Say:
+    level: str
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class _Reply:
+    status: str
+    state: VescStateRecord | None
+    odometry: OdometryRecord | None
+
+
+_Item = _Say | _Reply
+
+
+# --------------------------------------------------------------------------- the service
+class VescService:
+    """The driver, its serial loop thread and the bus side (see the module docstring)."""
+
+    def __init__(
+        self,
+        settings: VescSettings,
+        bus: Bus,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        """Create the driver (port opened lazily by the loop) and subscribe ``cmd/drive``.
+
+        Args:
+            settings: the ``[vesc]`` section.
+            bus: the service's open bus.
+            clock: monotonic clock [s] of the driver.
+            wall_clock: wall clock [s] for message stamps.
+        """
+        self.settings = settings
+        self.bus = bus
+        self._clock = clock
+        self._wall = wall_clock
+        self._port: Any | None = None  # the port object the link has open (for select)
+        self._factory = default_serial_factory(WRITE_TIMEOUT_S)
+        link = SerialLink(
+            settings.port,
+            settings.baudrate,
+            backoff_initial_s=settings.reconnect_backoff_initial_s,
+            backoff_max_s=settings.reconnect_backoff_max_s,
+            write_timeout_s=WRITE_TIMEOUT_S,
+            clock=clock,
+            serial_factory=self._open_port,
+        )
+        self.driver = VescDriver(settings, link, clock=clock)
+        self.outbox: DropOldestQueue[_Item] = DropOldestQueue(OUTBOX_SIZE)
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._closed = False
+        self._new_command = threading.Event()
+        self.commands_received = 0
+        self.driver_error: BaseException | None = None
+        #: Reply fields / odometry the messages rejected: field name -> count.
+        self.rejected_fields: collections.Counter[str] = collections.Counter()
+        self.status = "disconnected"  #: link status of the newest tick
+        # driver-thread state (transitions)
+        self._prev_link: LinkState | None = None
+        self._ever_connected = False
+        self._prev_wd: WatchdogState | None = None
+        self._link_events = EpisodeLimiter(settings.event_interval_s)
+        self._brake_events = EpisodeLimiter(settings.event_interval_s)
+        # main-thread state
+        self._invalid_report = GrowthLimiter(settings.event_interval_s)
+        self._rejected_report = GrowthLimiter(settings.event_interval_s)
+        self._last_state_pub_s = -math.inf
+        k = bus.keys
+        self.pub_state = bus.publisher(k.vesc_state, VescState)
+        self.pub_odom = bus.publisher(k.odom, Odom)
+        self.pub_log = bus.publisher(k.events_log, LogEvent)
+        self.drop_reporter = DropReporter(
+            bus, SERVICE, period_s=settings.event_interval_s, publisher=self.pub_log
+        )
+        self.sub = bus.subscribe(k.drive_cmd, DriveCmd, callback=self.on_drive_cmd)
+
+    # -- Zenoh thread --------------------------------------------------------------------
+    def on_drive_cmd(self, cmd: DriveCmd) -> None:
+        """Hand a valid drive command to the driver; never blocks."""
+        self.driver.on_command(cmd.speed_mps, cmd.steering_rad, self._clock())
+        self.commands_received += 1
+        if self.settings.write_on_command:
+            self._new_command.set()
+            self._wake()
+
+    def _wake(self) -> None:
+        if self._closed:
+            return
+        with contextlib.suppress(OSError):  # a full pipe already wakes the loop
+            os.write(self._wake_w, b"\x00")
+
+    # -- serial port ---------------------------------------------------------------------
+    def _open_port(self, port: str, baudrate: int) -> Any:
+        ser = self._factory(port, baudrate)
+        self._port = ser
+        return ser
+
+    # -- driver thread -------------------------------------------------------------------
+    def run_driver(self, stop: threading.Event) -> None:
+        """The serial loop (see the module docstring) until ``stop`` is set; then brake once
+        and close the port. Exceptions are kept in ``driver_error``."""
+        try:
+            self._loop(stop)
+        except BaseException as exc:  # reported by the main thread
+            self.driver_error = exc
+        finally:
+            self._brake_and_close()
+
+    def _loop(self, stop: threading.Event) -> None:
+        drv = self.driver
+        period = 1.0 / self.settings.command_rate_hz
+        immediate = self.settings.write_on_command
+        next_tick = drv.now()
+        last_tick = -math.inf
+        last_cmd_write = -math.inf
+        while not stop.is_set():
+            now = drv.now()
+            deadline = drv.watchdog.deadline()
+            expiry_due = deadline is not None and last_tick < deadline <= now
+            scheduled = now >= next_tick
+            cmd_due = (
+                immediate
+                and self._new_command.is_set()
+                and now >= last_cmd_write + MIN_COMMAND_WRITE_GAP_S
+            )
+            if scheduled or expiry_due or cmd_due:
+                self._new_command.clear()  # this tick sends the newest command
+                if cmd_due and not scheduled:
+                    last_cmd_write = now
+                result = drv.tick(now)
+                last_tick = now
+                if scheduled:
+                    next_tick += period
+                    if next_tick <= now:  # fell behind: skip, do not burst
+                        next_tick = now + period
+                self._after_tick(result)
+                continue
+            wake = next_tick
+            if deadline is not None and last_tick < deadline < wake:
+                wake = deadline
+            if immediate and self._new_command.is_set():
+                wake = min(wake, last_cmd_write + MIN_COMMAND_WRITE_GAP_S)
+            self._wait(max(0.0, wake - now) + WAKE_SLACK_S)
+
+    def _wait(self, timeout_s: float) -> None:
+        """Sleep up to ``timeout_s`` [s] on the port and the wake pipe; decode what arrived."""
+        fds = [self._wake_r]
+        port_fd: int | None = None
+        if self.driver.link.connected and self._port is not None:
+            try:
+                port_fd = int(self._port.fileno())
+                fds.append(port_fd)
+            except Exception:  # a port closed under us: the next read reports it
+                port_fd = None
+        try:
+            ready, _, _ = select.select(fds, [], [], timeout_s)
+        except (OSError, ValueError):
+            ready = [port_fd] if port_fd is not None else []
+            if port_fd is None:
+                time.sleep(min(timeout_s, 0.01))
+        if self._wake_r in ready:
+            with contextlib.suppress(OSError):
+                while os.read(self._wake_r, 4096):
+                    pass
+        if port_fd is not None and port_fd in ready:
+            self.driver.poll_input(self.driver.now())
+
+    def _after_tick(self, result: TickResult) -> None:
+        """Transitions of the link and the watchdog -> events; replies -> the out-box."""
+        self.status = result.status
+        now = result.stamp_s
+        s = self.settings
+        link = result.link
+        if link is not self._prev_link:
+            port = s.port
+            if link is LinkState.CONNECTED:
+                reported = self._link_events.end()
+                if not self._ever_connected:
+                    self._ever_connected = True
+                    self._say("info", f"VESC port {port} open")
+                elif reported:
+                    self._say("info", f"VESC port {port} back: resuming")
+            elif link is LinkState.DISCONNECTED:
+                err = self.driver.link.last_error or "not present"
+                if self._prev_link is None:
+                    self._say("warning", f"waiting for the VESC port {port} ({err}); retrying")
+                    self._link_events.start(now)
+                else:
+                    n = self._link_events.start(now)
+                    if n is not None:
+                        more = f" ({n} more losses since the last report)" if n else ""
+                        self._say("error", f"lost the VESC port {port} ({err}); retrying{more}")
+            self._prev_link = link
+        wd = result.watchdog
+        if wd is not self._prev_wd:
+            if wd is WatchdogState.FRESH:
+                if self._prev_wd in (None, WatchdogState.NO_COMMAND):
+                    self._say("info", "first drive command received: driving")
+                elif self._brake_events.end():
+                    self._say("info", "drive commands resumed: driving")
+            elif wd is WatchdogState.EXPIRED:
+                n = self._brake_events.start(now)
+                if n is not None:
+                    more = f" ({n} more since the last report)" if n else ""
+                    self._say(
+                        "warning",
+                        f"no drive command for {s.command_timeout_s * 1e3:.0f} ms: braking "
+                        f"({s.brake_current_a:g} A){more}",
+                    )
+            elif wd is WatchdogState.NO_COMMAND and self._prev_wd is None:
+                key = self.bus.keys.drive_cmd
+                self._say("info", f"waiting for the first drive command on {key}")
+            self._prev_wd = wd
+        if result.state is not None or result.odometry is not None:
+            self.outbox.put(_Reply(result.status, result.state, result.odometry))
+
+    def _say(self, level: str, text: str) -> None:
+        self.outbox.put(_Say(level, text))
+
+    def _brake_and_close(self) -> None:
+        link = self.driver.link
+        try:
+            if link.connected:
+                ok = link.write(encode_set_current_brake(self.settings.brake_current_a))
+                self.outbox.put(_Say("info", "stopping: brake sent" if ok else "stopping"))
+        finally:
+            self.driver.close()
+
+    # -- main thread ---------------------------------------------------------------------
+    def serve(self, stop: threading.Event) -> int:
+        """Run the driver thread and publish until ``stop`` is set; 0, or 1 if the loop died."""
+        thread = threading.Thread(target=self.run_driver, args=(stop,), name="vesc-serial")
+        thread.start()
+        code = 0
+        next_check = 0.0
+        next_waiting_log = self._clock() + WAITING_LOG_INTERVAL_S
+        try:
+            while not stop.is_set():
+                item = self.outbox.get(timeout_s=CHECK_PERIOD_S)
+                while item is not None:
+                    self._publish(item)
+                    item = self.outbox.get()
+                now = self._clock()
+                if now >= next_check:
+                    next_check = now + CHECK_PERIOD_S
+                    self._check_counters(now)
+                if now >= next_waiting_log:
+                    next_waiting_log = now + WAITING_LOG_INTERVAL_S
+                    self._log_waiting()
+                if not thread.is_alive() and not stop.is_set():
+                    log.error("the serial loop ended: %r", self.driver_error)
+                    self._publish(_Say("error", f"serial loop failed: {self.driver_error!r}"))
+                    code = 1
+                    break
+        finally:
+            stop.set()
+            self._wake()
+            thread.join(JOIN_TIMEOUT_S)
+            if thread.is_alive():
+                log.error("the serial loop did not stop within %.1f s", JOIN_TIMEOUT_S)
+                code = 1
+            for item in self.outbox.drain():
+                self._publish(item)
+            log.info("counters: %s", self.diagnostics())
+        return code
+
+    def _stamp(self, mono_s: float) -> float:
+        """Wall-clock stamp [s] of a driver-clock time ``mono_s``."""
+        return max(0.0, self._wall() - (self._clock() - mono_s))
+
+    def _publish(self, item: _Item) -> None:
+        if isinstance(item, _Say):
+            self.say(item.level, item.text)
+            return
+        if item.state is not None:
+            stamp = self._stamp(item.state.stamp_s)
+            msg, skipped = vesc_state_message(item.state.values, item.status, stamp)
+            self.rejected_fields.update(skipped)
+            self.pub_state.put(msg)
+            self._last_state_pub_s = self._clock()
+        if item.odometry is not None:
+            odom, bad = odom_message(item.odometry, self._stamp(item.odometry.stamp_s))
+            self.rejected_fields.update(f"odom.{b}" for b in bad)
+            if odom is not None:
+                self.pub_odom.put(odom)
+
+    def say(self, level: str, text: str) -> None:
+        """Log locally and publish a ``LogEvent`` on ``events/log``."""
+        getattr(log, level)(text)
+        try:
+            self.pub_log.put(
+                LogEvent(stamp_s=self._wall(), level=level, source=SERVICE, text=text[:8192])
+            )
+        except Exception as exc:  # a closed session while stopping: the local log has it
+            log.debug("could not publish a log event: %s", exc)
+
+    def _check_counters(self, now: float) -> None:
+        """Rate-limited events for grown drop / invalid-command / rejected-field counts."""
+        self.drop_reporter.poll()
+        c = self.driver.counters
+        invalid = c.out_of_range_commands + c.nonfinite_commands
+        if self._invalid_report.check(invalid, now):
+            action = "braked" if self.settings.invalid_command == "brake" else "clamped"
+            self.say(
+                "warning",
+                f"{invalid} invalid drive commands since start: {c.out_of_range_commands} out "
+                f"of the VESC range ({action}), {c.nonfinite_commands} non-finite (braked)",
+            )
+        rejected = sum(self.rejected_fields.values())
+        if self._rejected_report.check(rejected, now):
+            parts = [f"{k} x{n}" for k, n in sorted(self.rejected_fields.items())]
+            self.say(
+                "warning",
+                f"{rejected} VESC reply values outside the message limits were left out "
+                f"({', '.join(parts)})",
+            )
+        if now - self._last_state_pub_s >= STATUS_ONLY_INTERVAL_S:
+            msg, _ = vesc_state_message(None, self.status, self._wall())
+            self.pub_state.put(msg)
+            self._last_state_pub_s = now
+
+    def _log_waiting(self) -> None:
+        link = self.driver.link
+        if not link.connected:
+            log.info(
+                "still waiting for the VESC port %s (%s)",
+                self.settings.port,
+                link.last_error or "not open yet",
+            )
+        if self.commands_received == 0:
+            log.info("still waiting for the first drive command on %s", self.bus.keys.drive_cmd)
+
+    def diagnostics(self) -> dict[str, int]:
+        """The driver's counters plus the service's own (``service.*``)."""
+        out = self.driver.diagnostics()
+        out["service.commands_received"] = self.commands_received
+        out["service.bus_drops"] = self.bus.drops.total
+        out["service.outbox_dropped"] = self.outbox.dropped
+        out["service.rejected_fields"] = sum(self.rejected_fields.values())
+        return out
+
+    def close(self) -> None:
+        """Close the wake pipe (call after the bus session is closed) and the port."""
+        self._closed = True
+        self.driver.close()
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
+    """The service body (see the module docstring)."""
+    settings = cfg.vesc
+    if args.port:
+        settings = VescSettings.model_validate({**settings.model_dump(), "port": args.port})
+    svc: VescService | None = None
+    try:
+        with Bus(cfg.bus, SERVICE) as bus:
+            svc = VescService(settings, bus)
+            log.info(
+                "VESC driver on %s at %g Hz (write on command: %s); commands from %s",
+                settings.port,
+                settings.command_rate_hz,
+                "yes" if settings.write_on_command else "no",
+                bus.keys.drive_cmd,
+            )
+            return svc.serve(stop)
+    finally:
+        if svc is not None:
+            svc.close()
+
+
+def _add_args(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--port", help="serial device (overrides [vesc] port)")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m services.vesc_driver``."""
+    return run_service(SERVICE, argv, run, _add_args, description=__doc__.splitlines()[0])
