@@ -61,6 +61,12 @@ def format_table(doc: dict[str, Any]) -> str:
         t = "-" if st["p95"] is None else f"{st['p95']:.2f}/{st['p99']:.2f}"
         row_t += f"{t:>{width}}{'':>10}"
     lines += [row_laps, row_off, row_e, row_t]
+    for n in names:
+        m = methods[n]
+        if m["completed_laps"] < m.get("requested_laps", m["completed_laps"]):
+            why = m.get("aborted") or "stopped early"
+            lines.append(f"note: {n} completed only {m['completed_laps']} of "
+                         f"{m['requested_laps']} laps ({why}); its statistics cover those laps")
     return "\n".join(lines)
 
 
