@@ -1,8 +1,9 @@
 """The design of racestack's built-in tracks, made here from straights and circular arcs.
 
 Each design is a list of segments driven counter-clockwise from the origin heading +x:
-``("straight", length_m)`` or ``("arc", radius_m, turn_deg)`` (positive turn = left). Two
-straights are marked ``"close"``: their lengths are solved so the loop closes exactly.
+``("straight", length_m)`` or ``("arc", radius_m, turn_deg)`` (positive turn = left). The
+curvature ramps over ``TRANSITION_M`` between segments (as on real tracks), and two straights
+marked ``"close"`` get the lengths that make the loop close.
 
 ``python -m shared.track.builtin_design`` rewrites ``shared/track/builtin/*_centerline.csv``
 (F1TENTH format) from these designs; a test checks the shipped files match.
@@ -95,44 +96,85 @@ def solve_closure(segments: list) -> tuple[float, float]:
     return float(lengths[0]), float(lengths[1])
 
 
-def sample_design(design: dict, spacing_m: float = SPACING_M) -> np.ndarray:
-    """(n, 4) rows ``x_m, y_m, w_tr_right_m, w_tr_left_m`` sampled every ~`spacing_m`."""
-    closing = solve_closure(design["segments"])
-    pieces = []
-    pos = np.zeros(2)
-    heading = 0.0
-    k = 0
-    for seg in design["segments"]:
+#: Length over which the curvature ramps between straights and arcs [m] (clothoid-like
+#: transitions, as on real tracks: a car cannot follow a curvature step).
+TRANSITION_M = 1.0
+
+
+def _segment_curvature(segments: list, closing: tuple[float, float]) -> list[tuple[float, float]]:
+    """(length [m], curvature [1/m]) of each segment (left turns positive)."""
+    out, k = [], 0
+    for seg in segments:
         if seg[0] == "straight":
             length = closing[k] if seg[1] == "close" else seg[1]
             k += seg[1] == "close"
-            pieces.append(("line", pos.copy(), heading, length))
-            pos = pos + length * np.array([np.cos(heading), np.sin(heading)])
+            out.append((float(length), 0.0))
         else:
             _, radius, turn_deg = seg
-            turn = np.radians(turn_deg)
-            sign = np.sign(turn)
-            centre = pos + radius * sign * np.array([-np.sin(heading), np.cos(heading)])
-            pieces.append(("arc", centre, heading, radius, turn))
-            heading += turn
-            pos = centre - radius * sign * np.array([-np.sin(heading), np.cos(heading)])
-    lengths = [p[3] if p[0] == "line" else p[3] * abs(p[4]) for p in pieces]
-    total = float(np.sum(lengths))
+            out.append((radius * abs(np.radians(turn_deg)), float(np.sign(turn_deg)) / radius))
+    return out
+
+
+def _integrate(pieces: list[tuple[float, float]], spacing_m: float) -> np.ndarray:
+    """(n + 1, 2) points of the loop with its curvature smoothed over TRANSITION_M.
+
+    The piecewise-constant curvature is averaged over each step, smoothed with a
+    periodic moving average (which keeps the total turn of 360 deg), and integrated:
+    heading by the sum of curvature x step, position by steps along the midpoint heading.
+    The last point is where the loop ends (equal to the first when it closes).
+    """
+    lengths = np.array([p[0] for p in pieces])
+    total = float(lengths.sum())
     n = round(total / spacing_m)
-    s_all = np.arange(n) * total / n
-    starts = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])
-    xy = np.empty((n, 2))
-    for i, s in enumerate(s_all):
-        j = int(np.searchsorted(starts, s, side="right") - 1)
-        u = s - starts[j]
-        p = pieces[j]
-        if p[0] == "line":
-            xy[i] = p[1] + u * np.array([np.cos(p[2]), np.sin(p[2])])
-        else:
-            _, centre, h0, radius, turn = p
-            sign = np.sign(turn)
-            h = h0 + sign * u / radius
-            xy[i] = centre - radius * sign * np.array([-np.sin(h), np.cos(h)])
+    h = total / n
+    # exact mean curvature of each step (from the piecewise-linear cumulative turn), so the
+    # loop depends smoothly on the segment lengths
+    bounds = np.concatenate([[0.0], np.cumsum(lengths)])
+    turn = np.concatenate([[0.0], np.cumsum([p[0] * p[1] for p in pieces])])
+    kappa = np.diff(np.interp(np.arange(n + 1) * h, bounds, turn)) / h
+    w = max(1, round(TRANSITION_M / h)) | 1
+    half = w // 2
+    padded = np.concatenate([kappa[-half:], kappa, kappa[:half]]) if half else kappa
+    kappa = np.convolve(padded, np.ones(w) / w, mode="valid")
+    heading_start = np.concatenate([[0.0], np.cumsum(kappa * h)[:-1]])
+    heading_mid = heading_start + 0.5 * kappa * h
+    steps = h * np.column_stack([np.cos(heading_mid), np.sin(heading_mid)])
+    return np.vstack([[0.0, 0.0], np.cumsum(steps, axis=0)])
+
+
+def solve_closure_smooth(segments: list, spacing_m: float = SPACING_M) -> tuple[float, float]:
+    """Closing straight lengths for the smoothed loop (Newton from the exact-arc solution)."""
+    lengths = np.array(solve_closure(segments))
+    for _ in range(8):
+        end = _integrate(_segment_curvature(segments, tuple(lengths)), spacing_m)[-1]
+        if np.hypot(*end) < 1e-9:
+            break
+        J = np.empty((2, 2))
+        for j in range(2):
+            d = np.zeros(2)
+            d[j] = 1e-4
+            e2 = _integrate(_segment_curvature(segments, tuple(lengths + d)), spacing_m)[-1]
+            J[:, j] = (e2 - end) / 1e-4
+        lengths = lengths - np.linalg.solve(J, end)
+    return float(lengths[0]), float(lengths[1])
+
+
+def sample_design(design: dict, spacing_m: float = SPACING_M) -> np.ndarray:
+    """(n, 4) rows ``x_m, y_m, w_tr_right_m, w_tr_left_m`` sampled every ~`spacing_m`.
+
+    Straights and arcs joined by curvature ramps of TRANSITION_M; the two closing straights
+    are solved so that the loop closes (to well under a micrometre).
+    """
+    closing = solve_closure_smooth(design["segments"], spacing_m)
+    pts = _integrate(_segment_curvature(design["segments"], closing), spacing_m)
+    xy = pts[:-1]
+    # the last arc's ramp wraps past the start: turn the loop so that the first straight
+    # (its middle, clear of the ramps) runs exactly along +x from the origin
+    mid = min(len(xy) - 2, round(0.5 * closing[0] / (np.hypot(*(xy[1] - xy[0])))))
+    h = np.arctan2(*(xy[mid + 1] - xy[mid])[::-1])
+    rot = np.array([[np.cos(h), np.sin(h)], [-np.sin(h), np.cos(h)]])
+    xy = xy @ rot.T
+    n = len(xy)
     hw = design["half_width_m"]
     return np.column_stack([xy, np.full(n, hw), np.full(n, hw)])
 

@@ -244,6 +244,27 @@ def validate_loop(xy: np.ndarray, w_right: np.ndarray, w_left: np.ndarray, sourc
         raise TrackError(source, f"self-crossing loop: segment {i} crosses segment {j}")
 
 
+#: Distance below which a point counts as lying on a segment's line [m].
+TOUCH_TOLERANCE_M = 1e-7
+
+
+def _sign(v: np.ndarray, tol: np.ndarray | float) -> np.ndarray:
+    """-1, 0 or +1 with |v| <= tol counted as 0."""
+    return np.where(np.abs(v) <= tol, 0, np.sign(v))
+
+
+def _within(p: np.ndarray, a0: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Whether points p (m, 2) project strictly inside segment a0 -> a0 + r."""
+    t = ((p - a0) @ r) / float(r @ r)
+    return (t > 1e-9) & (t < 1 - 1e-9)
+
+
+def _within_many(p: np.ndarray, a0: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Whether point p (2,) projects strictly inside each segment a0[k] -> a0[k] + r[k]."""
+    t = np.einsum("ij,ij->i", p - a0, r) / np.einsum("ij,ij->i", r, r)
+    return (t > 1e-9) & (t < 1 - 1e-9)
+
+
 def find_self_crossing(xy: np.ndarray) -> tuple[int, int] | None:
     """First pair (i, j) of non-adjacent closed-polyline segments that properly cross, or None."""
     a = xy
@@ -254,16 +275,23 @@ def find_self_crossing(xy: np.ndarray) -> tuple[int, int] | None:
         j = np.arange(i + 2, n if i > 0 else n - 1)
         if j.size == 0:
             continue
-        # orientation tests of segment i against segments j and vice versa
+        # orientation tests of segment i against segments j and vice versa; a point within
+        # TOUCH_TOLERANCE_M of the other segment's line counts as on it (float noise on
+        # straights must not look like a crossing)
         r = d[i]
-        cross_ac = r[0] * (a[j, 1] - a[i, 1]) - r[1] * (a[j, 0] - a[i, 0])
-        cross_bc = r[0] * (b[j, 1] - a[i, 1]) - r[1] * (b[j, 0] - a[i, 0])
         dj = d[j]
-        cross_ca = dj[:, 0] * (a[i, 1] - a[j, 1]) - dj[:, 1] * (a[i, 0] - a[j, 0])
-        cross_da = dj[:, 0] * (b[i, 1] - a[j, 1]) - dj[:, 1] * (b[i, 0] - a[j, 0])
-        # proper crossings and touching at a vertex; collinear runs (a straight) are not hits
-        collinear = (cross_ac == 0) & (cross_bc == 0)
-        hit = (cross_ac * cross_bc <= 0) & (cross_ca * cross_da <= 0) & ~collinear
+        tol_i = TOUCH_TOLERANCE_M * np.hypot(*r)
+        tol_j = TOUCH_TOLERANCE_M * np.hypot(dj[:, 0], dj[:, 1])
+        s_ac = _sign(r[0] * (a[j, 1] - a[i, 1]) - r[1] * (a[j, 0] - a[i, 0]), tol_i)
+        s_bc = _sign(r[0] * (b[j, 1] - a[i, 1]) - r[1] * (b[j, 0] - a[i, 0]), tol_i)
+        s_ca = _sign(dj[:, 0] * (a[i, 1] - a[j, 1]) - dj[:, 1] * (a[i, 0] - a[j, 0]), tol_j)
+        s_da = _sign(dj[:, 0] * (b[i, 1] - a[j, 1]) - dj[:, 1] * (b[i, 0] - a[j, 0]), tol_j)
+        proper = (s_ac * s_bc < 0) & (s_ca * s_da < 0)
+        # touching: a vertex on the line of the other segment AND within that segment
+        touch = ((s_ac == 0) & _within(a[j], a[i], r)) | ((s_bc == 0) & _within(b[j], a[i], r))
+        touch |= ((s_ca == 0) & _within_many(a[i], a[j], dj))
+        touch |= ((s_da == 0) & _within_many(b[i], a[j], dj))
+        hit = proper | touch
         if np.any(hit):
             return i, int(j[np.argmax(hit)])
     return None

@@ -34,7 +34,7 @@ def test_short_bench_run_writes_results_and_figures(tmp_path: Path, capsys) -> N
     assert code == 0
     doc = json.loads((out / "results.json").read_text())
     assert doc["track"] == "paperlike"
-    assert doc["track_length_m"] == pytest.approx(42.37, abs=0.05)
+    assert doc["track_length_m"] == pytest.approx(42.53, abs=0.05)
     assert set(doc["methods"]) == {"cimpcc", "mpcc-tuned"}
     for name, m in doc["methods"].items():
         assert m["completed_laps"] == 2, name
