@@ -63,10 +63,10 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
         cmd_pub = bus.publisher(bus.keys.drive_cmd, DriveCmd)
         plan_pub = bus.publisher(bus.keys.plan, Plan)
         log_pub = bus.publisher(bus.keys.events_log, LogEvent)
-        drops = DropReporter(bus, SERVICE)
+        drops = DropReporter(bus, SERVICE, publisher=log_pub)
 
         def say(level: str, text: str) -> None:
-            getattr(log, level if level != "warning" else "warning")(text)
+            getattr(log, level)(text)
             log_pub.put(LogEvent(stamp_s=time.time(), level=level, source=SERVICE, text=text))
 
         log.info("ready; waiting for %s", bus.keys.state)
