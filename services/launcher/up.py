@@ -20,7 +20,7 @@ from services.bench.table import format_table
 from services.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import RacestackConfig
-from shared.messages import LapEvent, LogEvent, SimControl
+from shared.messages import LapEvent, LogEvent, Plan, SimControl
 from shared.track import load_track
 
 log = logging.getLogger(__name__)
@@ -58,6 +58,8 @@ def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) 
         Supervisor(log_dir=run_dir / "logs") as sup,
     ):
         lap_events = bus.subscribe(bus.keys.lap, LapEvent, queue_size=1000)
+        solve_ms: list[float] = []  # appended on the Zenoh thread (list.append is atomic)
+        bus.subscribe(bus.keys.plan, Plan, callback=lambda p: solve_ms.append(p.solve_time_ms))
         logs = bus.subscribe(bus.keys.events_log, LogEvent, queue_size=1000)
         control = bus.publisher(bus.keys.sim_control, SimControl)
         for name in opts.services:
@@ -112,9 +114,12 @@ def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) 
                 break
             time.sleep(0.05)
         print("stopping the stack", flush=True)
-    run = MethodRun(cfg.planner.method, laps, Trace(), [], 0, opts.laps)
+    run = MethodRun(cfg.planner.method, laps, Trace(), list(solve_ms), 0, opts.laps)
     doc = results_document(track.name, track.length_m, [run])
     print(format_table(doc), flush=True)
+    if "telemetry" in opts.services:
+        print(f"recording: {run_dir / 'telemetry.rrd'} (open: rerun {run_dir / 'telemetry.rrd'};"
+              f" figures: racestack report {run_dir})", flush=True)
     return 0 if len(laps) >= opts.laps else 1
 
 
