@@ -46,7 +46,8 @@ def run(seconds: float, rate_hz: float, speed_mps: float) -> dict:
     cfg = load_config(cfg_path)
     track = load_track(cfg.track.source)
     published: dict[float, float] = {}
-    arrivals: list[tuple[float, float, float]] = []  # (source stamp, arrival, solve ms)
+    # (pose stamp, command arrival, solve ms, command publish stamp)
+    arrivals: list[tuple[float, float, float, float]] = []
     lock = threading.Lock()
 
     last_cmd = [0.0]
@@ -58,7 +59,7 @@ def run(seconds: float, rate_hz: float, speed_mps: float) -> dict:
 
     def on_plan(p: Plan) -> None:
         with lock:
-            arrivals.append((p.source_stamp_s, last_cmd[0], p.solve_time_ms))
+            arrivals.append((p.source_stamp_s, last_cmd[0], p.solve_time_ms, p.stamp_s))
 
     with Bus(cfg.bus, "bench", listen_default=True, mode="router") as bus, \
             Supervisor(log_dir=tmp / "logs") as sup:
@@ -90,11 +91,15 @@ def run(seconds: float, rate_hz: float, speed_mps: float) -> dict:
             time.sleep(max(0.0, t_next - time.monotonic()))
         time.sleep(0.3)
     with lock:
-        matched = [(arr - published[src], solve) for src, arr, solve in arrivals
+        matched = [(arr - published[src], solve, issued - published[src])
+                   for src, arr, solve, issued in arrivals
                    if src in published and arr >= published[src]]
     lat = np.array([m[0] for m in matched]) * 1e3
     solve = np.array([m[1] for m in matched])
+    issued = np.array([m[2] for m in matched]) * 1e3
     return {
+        "issued_median_ms": float(np.median(issued)),
+        "issued_p99_ms": float(np.percentile(issued, 99)),
         "poses": len(published),
         "plans": len(arrivals),
         "matched": len(matched),
@@ -117,14 +122,17 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     r = run(args.seconds, args.rate_hz, args.speed_mps)
     print(f"{r['poses']} poses at {args.rate_hz:g} Hz, {r['plans']} plans, {r['matched']} matched")
-    print(f"pose -> command latency [ms]: median {r['latency_median_ms']:.3f}  "
+    print(f"pose -> command issued [ms]:   median {r['issued_median_ms']:.3f}  "
+          f"p99 {r['issued_p99_ms']:.3f}  (the planner's publish stamp)")
+    print(f"pose -> command delivered [ms]: median {r['latency_median_ms']:.3f}  "
           f"p99 {r['latency_p99_ms']:.3f}  max {r['latency_max_ms']:.3f}")
-    print(f"solve time [ms]:           median {r['solve_median_ms']:.3f}  "
+    print(f"solve time [ms]:            median {r['solve_median_ms']:.3f}  "
           f"p99 {r['solve_p99_ms']:.3f}")
-    print(f"latency - solve [ms]:      median {r['overhead_median_ms']:.3f}  "
+    print(f"delivered - solve [ms]:     median {r['overhead_median_ms']:.3f}  "
           f"p99 {r['overhead_p99_ms']:.3f}")
-    ok = r["latency_p99_ms"] <= r["solve_p99_ms"] + 2.0
-    print(f"target latency p99 <= solve p99 + 2 ms: {'met' if ok else 'NOT met'}")
+    for what, key in (("issued", "issued_p99_ms"), ("delivered", "latency_p99_ms")):
+        ok = r[key] <= r["solve_p99_ms"] + 2.0
+        print(f"target p99 <= solve p99 + 2 ms ({what}): {'met' if ok else 'NOT met'}")
     return 0
 
 
