@@ -227,12 +227,14 @@ class SimulatorService:
                 self.t0_wall += h
                 continue
             res = self.sim.step(None, h)
-            self.publish(res)
+            # publish when the wall clock reaches the new sim time, so no message leaves
+            # before the instant its stamp names
             delay = t0_mono + self.sim.t_s - time.monotonic()
             if delay > 0:
                 stop.wait(delay)
             elif delay < -OVERRUN_S:
                 self.overruns += 1
+            self.publish(res)
 
 
 def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
