@@ -49,6 +49,67 @@ def plan_message(res: SolveResult, stamp_s: float, source_stamp_s: float) -> Pla
     )
 
 
+class PlannerShell:
+    """Turns states into commands and plans; brakes on stale, invalid or missing state."""
+
+    def __init__(self, planner: Planner, bus: Bus, stale_s: float) -> None:
+        self.planner = planner
+        self.period = planner.settings.dt_s
+        self.stale_s = stale_s
+        self.cmd_pub = bus.publisher(bus.keys.drive_cmd, DriveCmd)
+        self.plan_pub = bus.publisher(bus.keys.plan, Plan)
+        self.log_pub = bus.publisher(bus.keys.events_log, LogEvent)
+        self.last_solve = 0.0
+        self.last_state = time.monotonic()
+        self.braking = True
+        self.steering = 0.0
+
+    def say(self, level: str, text: str) -> None:
+        """Log locally and on ``events/log``."""
+        getattr(log, level)(text)
+        self.log_pub.put(LogEvent(stamp_s=time.time(), level=level, source=SERVICE, text=text))
+
+    def brake(self) -> None:
+        """Command speed 0, steering held."""
+        self.cmd_pub.put(DriveCmd(stamp_s=time.time(), speed_mps=0.0, steering_rad=self.steering))
+
+    def on_state(self, st: State) -> None:
+        """Plan from one state: stale or invalid -> brake; else solve (rate-limited)."""
+        self.last_state = time.monotonic()
+        age = time.time() - st.source_stamp_s
+        if age > self.stale_s or not st.valid:
+            if not self.braking:
+                self.say("warning", f"stale or invalid state (age {age * 1e3:.0f} ms): braking")
+            self.braking = True
+            self.brake()
+            return
+        if time.monotonic() - self.last_solve < MIN_PERIOD_FRACTION * self.period:
+            return
+        self.last_solve = time.monotonic()
+        res = self.planner.step(st.x_m, st.y_m, st.yaw_rad)
+        self.steering = res.command.steering_rad
+        stamp = time.time()
+        self.cmd_pub.put(
+            DriveCmd(stamp_s=stamp, speed_mps=res.command.speed_mps, steering_rad=self.steering)
+        )
+        self.plan_pub.put(plan_message(res, stamp, st.source_stamp_s))
+        if self.braking:
+            self.say("info", "state fresh: racing")
+            self.braking = False
+        if res.status != SOLVED:
+            level = "error" if res.status == BRAKING else "warning"
+            self.say(level, f"solver {res.status}: {res.solver_status}")
+
+    def on_silence(self) -> None:
+        """No state arrived this period: brake once none came for stale_s."""
+        if time.monotonic() - self.last_state > self.stale_s:
+            if not self.braking:
+                self.say("warning", f"no state for {self.stale_s * 1e3:.0f} ms: braking")
+                self.braking = True
+                self.planner.reset()
+            self.brake()
+
+
 def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
     """The service body (see the module docstring)."""
     track = load_track(cfg.track.source)
@@ -56,59 +117,18 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
         "building the %s planner on %s (compiled problem cached)", cfg.planner.method, track.name
     )
     planner = Planner(track, cfg.planner, cfg.curvature)
-    period = cfg.planner.dt_s
-    stale_s = cfg.planner.stale_state_s
     with Bus(cfg.bus, SERVICE) as bus:
+        shell = PlannerShell(planner, bus, cfg.planner.stale_state_s)
+        drops = DropReporter(bus, SERVICE, publisher=shell.log_pub)
         states = bus.subscribe(bus.keys.state, State)
-        cmd_pub = bus.publisher(bus.keys.drive_cmd, DriveCmd)
-        plan_pub = bus.publisher(bus.keys.plan, Plan)
-        log_pub = bus.publisher(bus.keys.events_log, LogEvent)
-        drops = DropReporter(bus, SERVICE, publisher=log_pub)
-
-        def say(level: str, text: str) -> None:
-            getattr(log, level)(text)
-            log_pub.put(LogEvent(stamp_s=time.time(), level=level, source=SERVICE, text=text))
-
         log.info("ready; waiting for %s", bus.keys.state)
-        last_solve = 0.0
-        last_state_wall = time.monotonic()
-        braking = True
-        steering = 0.0
         while not stop.is_set():
             drops.poll()
-            st = states.wait(timeout_s=period)
-            now_wall = time.time()
+            st = states.wait(timeout_s=shell.period)
             if st is not None:
-                last_state_wall = time.monotonic()
-                age = now_wall - st.source_stamp_s
-                if age > stale_s or not st.valid:
-                    if not braking:
-                        say("warning", f"stale or invalid state (age {age * 1e3:.0f} ms): braking")
-                    braking = True
-                    cmd_pub.put(DriveCmd(stamp_s=now_wall, speed_mps=0.0, steering_rad=steering))
-                    continue
-                if time.monotonic() - last_solve < MIN_PERIOD_FRACTION * period:
-                    continue
-                last_solve = time.monotonic()
-                res = planner.step(st.x_m, st.y_m, st.yaw_rad)
-                steering = res.command.steering_rad
-                stamp = time.time()
-                cmd_pub.put(
-                    DriveCmd(stamp_s=stamp, speed_mps=res.command.speed_mps, steering_rad=steering)
-                )
-                plan_pub.put(plan_message(res, stamp, st.source_stamp_s))
-                if braking:
-                    say("info", "state fresh: racing")
-                    braking = False
-                if res.status != SOLVED:
-                    level = "error" if res.status == BRAKING else "warning"
-                    say(level, f"solver {res.status}: {res.solver_status}")
-            elif time.monotonic() - last_state_wall > stale_s:
-                if not braking:
-                    say("warning", f"no state for {stale_s * 1e3:.0f} ms: braking")
-                    braking = True
-                    planner.reset()
-                cmd_pub.put(DriveCmd(stamp_s=now_wall, speed_mps=0.0, steering_rad=steering))
+                shell.on_state(st)
+            else:
+                shell.on_silence()
         log.info("stopping")
     return 0
 
