@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -41,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from services.launcher.supervisor import stop_process
 from services.vesc_driver.fake_vesc import FakeVesc
 from services.vesc_driver.protocol import CommandId
 from shared.bus import Bus
@@ -78,15 +78,7 @@ def erpm_sequence(n: int) -> list[int]:
 
 def _stop(proc: subprocess.Popen[bytes]) -> int | None:
     """SIGINT by PID, wait; SIGKILL if it does not exit in time."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            return proc.wait(timeout=STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5.0)
-            return None
-    return proc.returncode
+    return stop_process(proc, STOP_TIMEOUT_S)
 
 
 def measure(
@@ -111,12 +103,16 @@ def measure(
         )
         cfg = load_config(toml)
         env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
-        with Bus(cfg.bus, "bench", listen_default=True, mode="router") as hub, open(
-            log_path, "wb"
-        ) as out:
+        with (
+            Bus(cfg.bus, "bench", listen_default=True, mode="router") as hub,
+            open(log_path, "wb") as out,
+        ):
             proc = subprocess.Popen(
                 [sys.executable, "-m", "services.vesc_driver", "--config", str(toml)],
-                cwd=str(ROOT), env=env, stdout=out, stderr=subprocess.STDOUT,
+                cwd=str(ROOT),
+                env=env,
+                stdout=out,
+                stderr=subprocess.STDOUT,
             )
             try:
                 if not hub.wait_alive(["vesc_driver"], START_TIMEOUT_S):
@@ -147,8 +143,11 @@ def measure(
         if e.value is not None:
             first.setdefault(round(e.value), []).append(e.t_s)
     index = {erpm: i for i, erpm in enumerate(erpms)}
-    wire = sorted((e.t_s, index[round(e.value)]) for e in events
-                  if e.value is not None and round(e.value) in index)
+    wire = sorted(
+        (e.t_s, index[round(e.value)])
+        for e in events
+        if e.value is not None and round(e.value) in index
+    )
     lat_ms: list[float] = []
     superseded = 0
     for i, (erpm, t_pub) in enumerate(zip(erpms, sent, strict=True)):
@@ -159,8 +158,15 @@ def measure(
         # not on the wire while newer commands are: superseded before a tick (fixed rate)
         if any(j > i for t, j in wire if t >= t_pub):
             superseded += 1
-    return {"mode": mode, "sent": len(sent), "matched": len(lat_ms), "superseded": superseded,
-            "latency_ms": lat_ms, "exit_code": code, "log": str(log_path)}
+    return {
+        "mode": mode,
+        "sent": len(sent),
+        "matched": len(lat_ms),
+        "superseded": superseded,
+        "latency_ms": lat_ms,
+        "exit_code": code,
+        "log": str(log_path),
+    }
 
 
 def summary(res: dict[str, Any]) -> dict[str, Any]:
@@ -185,33 +191,45 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=50.0, help="command rate [Hz]")
     ap.add_argument("--warmup", type=int, default=25, help="unmeasured commands first")
     ap.add_argument("--mode", choices=("both", "immediate", "fixed"), default="both")
-    ap.add_argument("--jitter", type=float, default=0.9,
-                    help="random send delay as a share of the command period, in [0, 1)")
+    ap.add_argument(
+        "--jitter",
+        type=float,
+        default=0.9,
+        help="random send delay as a share of the command period, in [0, 1)",
+    )
     ap.add_argument("--seed", type=int, default=0, help="seed of the send jitter")
     ap.add_argument("--json", action="store_true", help="print the summary as JSON too")
     args = ap.parse_args(argv)
     if args.n < 1 or args.rate <= 0 or not 0.0 <= args.jitter < 1.0:
         ap.error("--n must be >= 1, --rate > 0 and --jitter in [0, 1)")
     modes = ["immediate", "fixed"] if args.mode == "both" else [args.mode]
-    print(f"cmd/drive -> SET_RPM at the fake VESC: {args.n} commands at {args.rate:g} Hz "
-          f"per mode, send jitter {args.jitter:g} period (driver ticks at "
-          f"{VescSettings().command_rate_hz:g} Hz)")
+    print(
+        f"cmd/drive -> SET_RPM at the fake VESC: {args.n} commands at {args.rate:g} Hz "
+        f"per mode, send jitter {args.jitter:g} period (driver ticks at "
+        f"{VescSettings().command_rate_hz:g} Hz)"
+    )
     rows = []
     with tempfile.TemporaryDirectory(prefix="vesc-latency-") as tmp:
         for mode in modes:
             res = measure(mode, args.n, args.rate, args.warmup, Path(tmp), args.jitter, args.seed)
             rows.append(summary(res))
-    print(f"{'mode':<10} {'matched':>11} {'superseded':>10} {'median':>8} {'p90':>8} "
-          f"{'p99':>8} {'max':>8} {'mean':>8}  [ms]")
+    print(
+        f"{'mode':<10} {'matched':>11} {'superseded':>10} {'median':>8} {'p90':>8} "
+        f"{'p99':>8} {'max':>8} {'mean':>8}  [ms]"
+    )
     for r in rows:
         head = f"{r['mode']:<10} {r['matched']:>5}/{r['sent']:<5} {r['superseded']:>10}"
         if "median_ms" not in r:
             print(f"{head}  (nothing matched)")
             continue
-        print(f"{head} {r['median_ms']:8.2f} {r['p90_ms']:8.2f} {r['p99_ms']:8.2f} "
-              f"{r['max_ms']:8.2f} {r['mean_ms']:8.2f}")
-    print("superseded: a newer command arrived before any tick wrote this one (never on the "
-          "wire, by design);\nlost = sent - matched - superseded must be 0")
+        print(
+            f"{head} {r['median_ms']:8.2f} {r['p90_ms']:8.2f} {r['p99_ms']:8.2f} "
+            f"{r['max_ms']:8.2f} {r['mean_ms']:8.2f}"
+        )
+    print(
+        "superseded: a newer command arrived before any tick wrote this one (never on the "
+        "wire, by design);\nlost = sent - matched - superseded must be 0"
+    )
     if args.json:
         print(json.dumps(rows))
     lost = sum(r["sent"] - r["matched"] - r["superseded"] for r in rows)

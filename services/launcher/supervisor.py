@@ -42,6 +42,22 @@ class Child:
         return self.process.poll()
 
 
+def stop_process(proc: subprocess.Popen, grace_s: float = 10.0) -> int | None:
+    """Stop one process we started, by its PID: SIGINT, wait `grace_s`; then SIGKILL.
+
+    Returns its exit code, or None when it had to be killed.
+    """
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            return proc.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5.0)
+            return None
+    return proc.returncode
+
+
 def service_argv(name: str, config_path: str | None, extra: Sequence[str] = ()) -> list[str]:
     """The command line that starts service `name` with the current interpreter."""
     argv = [sys.executable, "-m", f"services.{name}"]

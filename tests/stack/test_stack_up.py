@@ -20,6 +20,7 @@ import pyarrow as pa
 import pytest
 import rerun as rr
 
+from services.launcher.supervisor import stop_process
 from services.telemetry.report import lap_events, read_recording
 
 pytestmark = pytest.mark.slow
@@ -62,16 +63,6 @@ def gone(pid: int) -> bool:
     return False
 
 
-def stop(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
-
-
 def monotone_in_file(path: Path, entity: str) -> int:
     """Rows of `entity` in file order; asserts the message time never goes back.
 
@@ -101,7 +92,7 @@ def test_racestack_up_races_a_lap_records_it_and_stops_everything(tmp_path: Path
     try:
         out, _ = proc.communicate(timeout=180)
     finally:
-        stop(proc)
+        stop_process(proc, grace_s=20.0)
     assert proc.returncode == 0, out
     pids = started_pids(out)
     assert set(pids) == {"simulator", "localization_bridge", "planner", "telemetry"}, out
@@ -159,7 +150,7 @@ def test_ctrl_c_stops_every_service(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGINT)
         rest, _ = proc.communicate(timeout=30)
     finally:
-        stop(proc)
+        stop_process(proc, grace_s=20.0)
     out = "".join(lines) + rest
     assert proc.returncode == 130, out
     pids = started_pids(out)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -26,6 +25,7 @@ import pyarrow as pa
 import pytest
 import rerun as rr
 
+from services.launcher.supervisor import stop_process
 from services.telemetry import report
 from services.telemetry.synthetic import lap_stream, replay
 from shared.bus import Bus
@@ -46,29 +46,56 @@ STOP_TIMEOUT_S = 15.0
 #: Invalid payloads of several kinds, put on several keys between valid messages.
 GARBAGE: list[tuple[str, bytes]] = [
     (STATE, b"\xc1 not msgpack at all"),
-    (STATE, msgpack.packb({"type": "pose", "v": 1, "stamp_s": 1.0, "seq": 0,
-                           "x_m": 0.0, "y_m": 0.0, "yaw_rad": 0.0})),
+    (
+        STATE,
+        msgpack.packb(
+            {
+                "type": "pose",
+                "v": 1,
+                "stamp_s": 1.0,
+                "seq": 0,
+                "x_m": 0.0,
+                "y_m": 0.0,
+                "yaw_rad": 0.0,
+            }
+        ),
+    ),
     (PLAN, msgpack.packb({"type": "plan", "v": 1, "stamp_s": 1.0, "seq": 0})),
-    (POSE, msgpack.packb({"type": "pose", "v": 1, "stamp_s": 1.0, "seq": 0,
-                          "x_m": float("nan"), "y_m": 0.0, "yaw_rad": 0.0})),
+    (
+        POSE,
+        msgpack.packb(
+            {
+                "type": "pose",
+                "v": 1,
+                "stamp_s": 1.0,
+                "seq": 0,
+                "x_m": float("nan"),
+                "y_m": 0.0,
+                "yaw_rad": 0.0,
+            }
+        ),
+    ),
     (LAP, b""),
     (EVENTS_LOG, msgpack.packb([1, 2, 3])),
-    (DRIVE_CMD, msgpack.packb({"type": "drive_cmd", "v": 99, "stamp_s": 1.0, "seq": 0,
-                               "speed_mps": 1.0, "steering_rad": 0.0})),
+    (
+        DRIVE_CMD,
+        msgpack.packb(
+            {
+                "type": "drive_cmd",
+                "v": 99,
+                "stamp_s": 1.0,
+                "seq": 0,
+                "speed_mps": 1.0,
+                "steering_rad": 0.0,
+            }
+        ),
+    ),
 ]
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> int | None:
-    """SIGINT, wait; SIGKILL by PID if it does not exit in time. Returns the exit code."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            return proc.wait(timeout=STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
-            return None
-    return proc.returncode
+    """SIGINT by PID, wait; SIGKILL if it does not exit in time."""
+    return stop_process(proc, STOP_TIMEOUT_S)
 
 
 def _wait_or_kill(proc: subprocess.Popen[bytes] | None) -> int | None:
@@ -106,8 +133,9 @@ def read_rrd(path: Path) -> dict[str, dict[str, list[Any]]]:
                 continue
             col = rb.column(name)
             if name in ("sim_time", "wall_time"):
-                cols[name].extend((col.cast(pa.int64()).to_numpy(zero_copy_only=False)
-                                   / 1e9).tolist())
+                cols[name].extend(
+                    (col.cast(pa.int64()).to_numpy(zero_copy_only=False) / 1e9).tolist()
+                )
             else:
                 cols[name].extend(col.to_pylist())
     return out
@@ -130,21 +158,44 @@ def recorded(tmp_path_factory: pytest.TempPathFactory, tele_circle_csv: Path) ->
     log_path = tmp / "telemetry.log"
     with Bus(cfg.bus, "test", listen_default=True) as hub, open(log_path, "wb") as log:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "services.telemetry", "--config", str(toml),
-             "--out", str(out), "--serve", str(serve_port)],
-            cwd=str(ROOT), env=env, stdout=log, stderr=subprocess.STDOUT,
+            [
+                sys.executable,
+                "-m",
+                "services.telemetry",
+                "--config",
+                str(toml),
+                "--out",
+                str(out),
+                "--serve",
+                str(serve_port),
+            ],
+            cwd=str(ROOT),
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
         )
         saver: subprocess.Popen[bytes] | None = None
         try:
             assert hub.wait_alive(["telemetry"], timeout_s=START_TIMEOUT_S), (
-                "telemetry did not come up:\n" + log_path.read_text(errors="replace"))
+                "telemetry did not come up:\n" + log_path.read_text(errors="replace")
+            )
             # a headless client of the live stream (what a viewer gets), its own gRPC
             # server bound to loopback: `rerun --bind 127.0.0.1 --port P URL --save FILE`
             saver = subprocess.Popen(
-                [str(Path(sys.executable).parent / "rerun"), "--bind", "127.0.0.1",
-                 "--port", str(saver_port), f"rerun+http://127.0.0.1:{serve_port}/proxy",
-                 "--save", str(tmp / "live.rrd")],
-                cwd=str(tmp), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                [
+                    str(Path(sys.executable).parent / "rerun"),
+                    "--bind",
+                    "127.0.0.1",
+                    "--port",
+                    str(saver_port),
+                    f"rerun+http://127.0.0.1:{serve_port}/proxy",
+                    "--save",
+                    str(tmp / "live.rrd"),
+                ],
+                cwd=str(tmp),
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
             )
             probe = hub.publisher(hub.keys.state, State)
             assert probe.wait_matching(5.0)
@@ -158,8 +209,11 @@ def recorded(tmp_path_factory: pytest.TempPathFactory, tele_circle_csv: Path) ->
                     garbage_sent.append(t)
 
             track = load_track(str(tele_circle_csv))
-            sent = replay(hub, lap_stream(track, DURATION_S, t0_s=T0_S, speed_mps=SPEED_MPS),
-                          before_put=inject)
+            sent = replay(
+                hub,
+                lap_stream(track, DURATION_S, t0_s=T0_S, speed_mps=SPEED_MPS),
+                before_put=inject,
+            )
         finally:
             code = _stop(proc)
             saver_code = _wait_or_kill(saver)
@@ -238,8 +292,11 @@ def test_tele_car_pose_and_horizon(recorded: dict[str, Any]) -> None:
 
 def _series(data: dict[str, Any], entity: str) -> tuple[np.ndarray, np.ndarray]:
     cols = data[entity]
-    rows = [(t, v[0]) for t, v in zip(cols["sim_time"], cols["Scalars:scalars"], strict=True)
-            if v is not None]
+    rows = [
+        (t, v[0])
+        for t, v in zip(cols["sim_time"], cols["Scalars:scalars"], strict=True)
+        if v is not None
+    ]
     t = np.array([r[0] for r in rows])
     return t, np.array([r[1] for r in rows])
 
@@ -290,8 +347,9 @@ def test_tele_garbage_does_not_stop_the_recording(recorded: dict[str, Any]) -> N
     assert any(k.startswith("telemetry/rejected/") for k in data)
 
 
-def test_tele_report_of_the_recording(recorded: dict[str, Any], tmp_path: Path,
-                                      capsys: pytest.CaptureFixture[str]) -> None:
+def test_tele_report_of_the_recording(
+    recorded: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     rc = report.main([str(recorded["out"]), "--out", str(tmp_path)])
     text = capsys.readouterr().out
     assert rc == 0, text
@@ -300,8 +358,13 @@ def test_tele_report_of_the_recording(recorded: dict[str, Any], tmp_path: Path,
     doc = json.loads((tmp_path / "results.json").read_text())
     laps = doc["methods"]["CiMPCC"]["laps"]
     assert len(laps) == 1 and laps[0]["lap_time_s"] == pytest.approx(lap_time)
-    for name in ("fig4_curvature.png", "fig5_speed_vs_s.png", "fig6_trajectories.png",
-                 "fig7_laps.png", "fig8_solve_time.png"):
+    for name in (
+        "fig4_curvature.png",
+        "fig5_speed_vs_s.png",
+        "fig6_trajectories.png",
+        "fig7_laps.png",
+        "fig8_solve_time.png",
+    ):
         assert (tmp_path / name).stat().st_size > 1000
 
 

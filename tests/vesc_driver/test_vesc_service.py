@@ -124,8 +124,9 @@ def events_after(fake: FakeVesc, cmd: int, t_s: float) -> list[FakeEvent]:
 class Streamer:
     """Publishes one DriveCmd at ``rate_hz`` on a thread until stopped."""
 
-    def __init__(self, pub: TypedPublisher[DriveCmd], speed: float, steer: float,
-                 rate_hz: float = 50.0) -> None:
+    def __init__(
+        self, pub: TypedPublisher[DriveCmd], speed: float, steer: float, rate_hz: float = 50.0
+    ) -> None:
         self.pub, self.speed, self.steer, self.period = pub, speed, steer, 1.0 / rate_hz
         self.last_put_s = -math.inf
         self._stop = threading.Event()
@@ -133,8 +134,9 @@ class Streamer:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            self.pub.put(DriveCmd(stamp_s=time.time(), speed_mps=self.speed,
-                                  steering_rad=self.steer))
+            self.pub.put(
+                DriveCmd(stamp_s=time.time(), speed_mps=self.speed, steering_rad=self.steer)
+            )
             self.last_put_s = time.monotonic()
             self._stop.wait(self.period)
 
@@ -166,10 +168,12 @@ class Rig:
         self.hub = Bus(cfg.bus, "test", listen_default=True, mode="router")
         k = self.hub.keys
         self.states: Subscription[VescState] = self.hub.subscribe(
-            k.vesc_state, VescState, queue_size=1024)
+            k.vesc_state, VescState, queue_size=1024
+        )
         self.odoms: Subscription[Odom] = self.hub.subscribe(k.odom, Odom, queue_size=1024)
         self.logs: Subscription[LogEvent] = self.hub.subscribe(
-            k.events_log, LogEvent, queue_size=1024)
+            k.events_log, LogEvent, queue_size=1024
+        )
         self.log_events: list[LogEvent] = []
         self.cmd = self.hub.publisher(k.drive_cmd, DriveCmd)
 
@@ -188,8 +192,7 @@ class Rig:
 
     def alive(self) -> bool:
         """The process runs and its liveliness token is seen."""
-        return self.proc is not None and self.proc.poll() is None and (
-            SERVICE in self.hub.alive())
+        return self.proc is not None and self.proc.poll() is None and (SERVICE in self.hub.alive())
 
     def drive(self, speed: float, steer: float, duration_s: float) -> float:
         """Publish commands at 50 Hz for ``duration_s`` [s]; the time of the last put [s]."""
@@ -201,8 +204,9 @@ class Rig:
                 return t
             time.sleep(0.02)
 
-    def wait_log(self, pred: Callable[[LogEvent], bool], timeout_s: float = WAIT_S
-                 ) -> LogEvent | None:
+    def wait_log(
+        self, pred: Callable[[LogEvent], bool], timeout_s: float = WAIT_S
+    ) -> LogEvent | None:
         """The first LogEvent of the service (seen so far or arriving) matching ``pred``."""
         deadline = time.monotonic() + timeout_s
         while True:
@@ -246,8 +250,10 @@ def test_drive_command_reaches_the_wire(rig: Rig) -> None:
     t0 = time.monotonic()
     rig.drive(2.0, 0.1, 0.3)
     assert fake.wait_for(
-        lambda f: any(e.value == 9228.0 for e in events_after(f, CommandId.SET_RPM, t0))
-        and any(e.value == 0.409 for e in events_after(f, CommandId.SET_SERVO_POS, t0)),
+        lambda f: (
+            any(e.value == 9228.0 for e in events_after(f, CommandId.SET_RPM, t0))
+            and any(e.value == 0.409 for e in events_after(f, CommandId.SET_SERVO_POS, t0))
+        ),
         WAIT_S,
     ), rig.output()
     assert events_after(fake, CommandId.ALIVE, t0)
@@ -279,8 +285,9 @@ def test_brake_within_150_ms_of_the_last_command(rig: Rig) -> None:
     fake = _fake(rig)
     time.sleep(EVENT_INTERVAL_S + 0.05)  # so the braking event is not rate-limited away
     t_last = rig.drive(1.5, 0.0, 0.4)
-    assert fake.wait_for(lambda f: bool(events_after(f, CommandId.SET_CURRENT_BRAKE, t_last)),
-                         WAIT_S), rig.output()
+    assert fake.wait_for(
+        lambda f: bool(events_after(f, CommandId.SET_CURRENT_BRAKE, t_last)), WAIT_S
+    ), rig.output()
     first = events_after(fake, CommandId.SET_CURRENT_BRAKE, t_last)[0]
     assert first.value == pytest.approx(20.0)
     assert first.t_s - t_last <= 0.150, f"brake {1e3 * (first.t_s - t_last):.1f} ms after"
@@ -402,8 +409,9 @@ def test_missing_port_is_waited_for_then_sigterm_brakes_and_exits(tmp_path: Path
 
 # --------------------------------------------------------------------------- pure pieces
 def test_state_message_maps_values_and_leaves_out_what_the_message_rejects() -> None:
-    values = replace(DEFAULT_VALUES, erpm=9228.0, amp_hours=-0.5, temp_motor_c=999.0,
-                     duty=0.25, tachometer=-12)
+    values = replace(
+        DEFAULT_VALUES, erpm=9228.0, amp_hours=-0.5, temp_motor_c=999.0, duty=0.25, tachometer=-12
+    )
     msg, skipped = vesc_state_message(values, "ok", 123.0)
     assert set(skipped) == {"amp_hours", "temp_motor_c"}
     assert msg.amp_hours is None and msg.temp_motor_c is None

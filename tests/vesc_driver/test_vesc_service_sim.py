@@ -10,7 +10,6 @@ processes are stopped by PID with a timeout in a ``finally``.
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -22,6 +21,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
+from services.launcher.supervisor import stop_process
 from services.simulator.vesc_actuation import VescActuation
 from services.vesc_driver.driver import VescDriver
 from shared.bus import Bus
@@ -59,21 +59,16 @@ def _start(module: str, toml: Path, log_path: Path) -> subprocess.Popen[bytes]:
     with open(log_path, "wb") as out:
         return subprocess.Popen(
             [sys.executable, "-m", module, "--config", str(toml)],
-            cwd=str(ROOT), env=env, stdout=out, stderr=subprocess.STDOUT,
+            cwd=str(ROOT),
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
         )
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> int | None:
     """SIGINT by PID, wait; SIGKILL if it does not exit in time."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            return proc.wait(timeout=STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5.0)
-            return None
-    return proc.returncode
+    return stop_process(proc, STOP_TIMEOUT_S)
 
 
 def _until(cond: Callable[[], bool], timeout_s: float) -> bool:
@@ -99,8 +94,11 @@ def test_drive_commands_move_the_simulated_car_through_the_fake_vesc(tmp_path: P
     logs = {name: tmp_path / f"{name}.log" for name in ("simulator", "vesc_driver")}
 
     def output() -> str:
-        return "\n".join(f"--- {n}\n{p.read_text(errors='replace')[-3000:]}"
-                         for n, p in logs.items() if p.exists())
+        return "\n".join(
+            f"--- {n}\n{p.read_text(errors='replace')[-3000:]}"
+            for n, p in logs.items()
+            if p.exists()
+        )
 
     procs: list[subprocess.Popen[bytes]] = []
     stop_stream = threading.Event()
