@@ -5,6 +5,12 @@ the car's position, or per predicted stage), solves the problem built once by
 ``problem.build_problem`` and returns a ``SolveResult``. A failed solve falls back to the
 previous plan shifted by one step; ``max_consecutive_failures`` failures in a row give a
 braking command (speed 0). Commands are always finite and inside the input bounds.
+
+Latency: only what needs the new pose runs between the pose and the command (projection,
+aligning the warm start, the solve). ``Planner.prepare()`` does the rest of the next tick's
+work ahead of time (the previous plan shifted and extrapolated, per-stage beta); a service
+calls it after publishing, ``step`` calls it itself when nobody did. ``step(...,
+on_command=f)`` hands the command to ``f`` before the result record is assembled.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 
 from services.planner.model import NU, S, U
@@ -30,6 +37,22 @@ SOLVED, FALLBACK, BRAKING = "solved", "fallback", "braking"
 PROJECTION_WINDOW_M = 5.0
 #: Speed [m/s] of the rollout that seeds the very first solve.
 INITIAL_GUESS_SPEED_MPS = 1.0
+
+
+@dataclass
+class _Prepared:
+    """The next tick's measurement-independent work (see ``Planner.prepare``).
+
+    Attributes:
+        xs: (N+1, 7) previous states shifted one stage, the last extrapolated with the model
+            (progress and heading not yet aligned with the next pose).
+        us: (N, 4) previous inputs shifted one stage, slack zeroed.
+        beta: (N,) per-stage beta at the shifted progress, or None (beta at the car only).
+    """
+
+    xs: np.ndarray
+    us: np.ndarray
+    beta: np.ndarray | None
 
 
 @dataclass(frozen=True)
@@ -117,6 +140,15 @@ class Planner:
         self._u_lo = np.array([b.v_l_mps[0], b.delta_rad[0], b.v_p_mps[0]])
         self._u_hi = np.array([b.v_l_mps[1], b.delta_rad[1], b.v_p_mps[1]])
         self._slack_w = (settings.slack_weight_linear, settings.slack_weight_quadratic)
+        pr = self.problem
+        # constant solver arguments, converted once
+        self._bounds = {
+            "lbx": ca.DM(pr.lbw),
+            "ubx": ca.DM(pr.ubw),
+            "lbg": ca.DM(pr.lbg),
+            "ubg": ca.DM(pr.ubg),
+        }
+        self._p_cache: tuple[MethodWeights, np.ndarray] | None = None
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -126,6 +158,7 @@ class Planner:
         self._s_prev: float | None = None
         self._u_applied = np.zeros(NU)
         self._failures = 0
+        self._prepared: _Prepared | None = None
 
     @property
     def horizon(self) -> int:
@@ -133,12 +166,47 @@ class Planner:
         return self.problem.horizon
 
     # ------------------------------------------------------------------ one tick
-    def step(self, x_m: float, y_m: float, yaw_rad: float) -> SolveResult:
-        """Plan from the car's pose (rear axle [m], yaw [rad]); see the module docstring."""
+    def prepare(self) -> None:
+        """Do the next tick's work that needs no new pose, now (e.g. after publishing).
+
+        Shifts the last solution by one stage, extrapolates its last stage with the model
+        and (``beta_mode = "per_stage"``) evaluates beta along it. Idempotent; ``step``
+        calls it when it was not called since the last solve.
+        """
+        if self._prepared is not None or self._w_prev is None:
+            return
+        pr = self.problem
+        xs_prev, us_prev = pr.unpack(self._w_prev)
+        xs = np.vstack([xs_prev[1:], xs_prev[-1:]])
+        us = np.vstack([us_prev[1:], us_prev[-1:]])
+        xs[-1, : len(S)] = np.asarray(pr.step(xs[-2, : len(S)], us[-1, :NU])).reshape(-1)
+        xs[-1, len(S) :] = us[-1, :NU]
+        us[:, UA.SLACK] = 0.0
+        beta = None
+        if self.settings.beta_mode == "per_stage":  # periodic in s: no lap alignment needed
+            beta = np.asarray(self.profile.beta_at(xs[: pr.horizon, XA.PROGRESS]), dtype=float)
+        self._prepared = _Prepared(xs, us, beta)
+
+    def step(
+        self,
+        x_m: float,
+        y_m: float,
+        yaw_rad: float,
+        on_command: Callable[[DriveCommand], None] | None = None,
+    ) -> SolveResult:
+        """Plan from the car's pose (rear axle [m], yaw [rad]); see the module docstring.
+
+        Args:
+            x_m, y_m, yaw_rad: the pose.
+            on_command: called with the command as soon as it is known, before the result
+                record is assembled (a service publishes it there); exceptions propagate.
+        """
         pr = self.problem
         N = pr.horizon
         if not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad)):
-            return self._failed(np.zeros(NU + 1), 0.0, 0.0, "non-finite pose", 0, 0.0, None)
+            return self._failed(
+                np.zeros(NU + 1), 0.0, 0.0, "non-finite pose", 0, 0.0, None, on_command
+            )
         s0, e0 = self.track.project(
             np.array([x_m, y_m]), s_hint=self._s_prev, window_m=PROJECTION_WINDOW_M
         )
@@ -148,16 +216,20 @@ class Planner:
         x0[XA.X], x0[XA.Y], x0[XA.PHI], x0[XA.PROGRESS] = x_m, y_m, yaw_rad, s0
         x0[XA.V_L_PREV : XA.V_P_PREV + 1] = self._u_applied
 
-        xs_ws, us_ws = self._warm_start(x0)
-        beta = self._beta(s0, xs_ws[:N, XA.PROGRESS])
-        w_du0 = 1.0 if self.settings.delta_u_on_applied else 0.0
-        p = pr.layout.pack(x0, beta, self.weights, w_du0, self._slack_w)
+        self.prepare()
+        prep, self._prepared = self._prepared, None
+        if prep is None:
+            xs_ws, us_ws, beta = self._cold_guess(x0)
+        else:
+            xs_ws, us_ws, beta = self._align(prep, x0), prep.us, prep.beta
+        if beta is None:
+            beta = self._beta(s0, xs_ws[:N, XA.PROGRESS])
+        p = self._parameters(x0, beta)
+        w0 = pr.pack(xs_ws, us_ws)
 
         t0 = self._timer()
         try:
-            sol = self.solver.solve(
-                x0=pr.pack(xs_ws, us_ws), p=p, lbx=pr.lbw, ubx=pr.ubw, lbg=pr.lbg, ubg=pr.ubg
-            )
+            sol = self.solver.solve(x0=w0, p=p, **self._bounds)
             stats = self.solver.solve.stats()
             w = np.asarray(sol["x"], dtype=float).reshape(-1)
             ok = bool(stats.get("success", False)) and bool(np.all(np.isfinite(w)))
@@ -168,15 +240,18 @@ class Planner:
         solve_time = self._timer() - t0
 
         if not ok:
-            return self._failed(x0, s0, e0, status_text, iters, solve_time, beta)
+            return self._failed(x0, s0, e0, status_text, iters, solve_time, beta, on_command)
         self._failures = 0
         self._w_prev = w
-        xs, us = pr.unpack(w)
-        u0 = np.clip(us[0, :NU], self._u_lo, self._u_hi)
+        u0 = np.clip(w[pr.input_index(0)][:NU], self._u_lo, self._u_hi)
         self._u_applied = u0
         speed, limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
+        command = DriveCommand(speed, float(u0[U.DELTA]))
+        if on_command is not None:
+            on_command(command)
+        xs, us = pr.unpack(w)
         return SolveResult(
-            command=DriveCommand(speed, float(u0[U.DELTA])),
+            command=command,
             states=xs[:, : len(S)].copy(),
             inputs=us[:, :NU].copy(),
             status=SOLVED,
@@ -205,40 +280,48 @@ class Planner:
         if outside and abs(speed) > cap:
             return float(np.clip(speed, -cap, cap)), True
         return speed, False
+
     def _beta(self, s0: float, s_pred: np.ndarray) -> np.ndarray:
         """beta per stage (N,): all g(NSC(s0)) (paper) or g(NSC(s_k)) of the warm start."""
         if self.settings.beta_mode == "per_stage":
             return np.asarray(self.profile.beta_at(s_pred), dtype=float)
         return np.full(self.horizon, float(self.profile.beta_at(s0)))
 
-    def _warm_start(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Previous solution shifted by one stage, aligned to x0 (s and phi unwrapped)."""
+    def _parameters(self, x0: np.ndarray, beta: np.ndarray) -> np.ndarray:
+        """The parameter vector: weights packed once per weights object, x0 and beta set."""
+        layout = self.problem.layout
+        if self._p_cache is None or self._p_cache[0] is not self.weights:
+            w_du0 = 1.0 if self.settings.delta_u_on_applied else 0.0
+            template = layout.pack(x0, beta, self.weights, w_du0, self._slack_w)
+            self._p_cache = (self.weights, template)
+        p = self._p_cache[1].copy()
+        p[layout.slices["x0"]] = x0
+        p[layout.slices["beta"]] = beta
+        return p
+
+    def _cold_guess(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, None]:
+        """First-solve guess: a model rollout from x0 at INITIAL_GUESS_SPEED_MPS."""
         pr = self.problem
         N = pr.horizon
+        xs = np.empty((N + 1, len(XA)))
+        us = np.zeros((N, len(UA)))
+        us[:, UA.V_L] = INITIAL_GUESS_SPEED_MPS
+        us[:, UA.V_P] = INITIAL_GUESS_SPEED_MPS
+        xs[0] = x0
+        for k in range(N):
+            nxt = np.asarray(pr.step(xs[k, : len(S)], us[k, :NU])).reshape(-1)
+            xs[k + 1, : len(S)] = nxt
+            xs[k + 1, len(S) :] = us[k, :NU]
+        return xs, us, None
+
+    def _align(self, prep: _Prepared, x0: np.ndarray) -> np.ndarray:
+        """The shifted states aligned with x0: whole laps in s, whole turns in phi, xa_0 = x0."""
+        xs = prep.xs
         L = self.track.length_m
-        if self._w_prev is None:
-            xs = np.empty((N + 1, len(XA)))
-            us = np.zeros((N, len(UA)))
-            us[:, UA.V_L] = INITIAL_GUESS_SPEED_MPS
-            us[:, UA.V_P] = INITIAL_GUESS_SPEED_MPS
-            xs[0] = x0
-            for k in range(N):
-                nxt = np.asarray(pr.step(xs[k, : len(S)], us[k, :NU])).reshape(-1)
-                xs[k + 1, : len(S)] = nxt
-                xs[k + 1, len(S) :] = us[k, :NU]
-            return xs, us
-        xs_prev, us_prev = pr.unpack(self._w_prev)
-        xs = np.vstack([xs_prev[1:], xs_prev[-1:]])
-        us = np.vstack([us_prev[1:], us_prev[-1:]])
-        # extrapolate the last stage with the model
-        xs[-1, : len(S)] = np.asarray(pr.step(xs[-2, : len(S)], us[-1, :NU])).reshape(-1)
-        xs[-1, len(S) :] = us[-1, :NU]
-        # align progress (laps) and heading (turns) with the measured state
         xs[:, XA.PROGRESS] += L * round((x0[XA.PROGRESS] - xs[0, XA.PROGRESS]) / L)
         xs[:, XA.PHI] += 2 * np.pi * round((x0[XA.PHI] - xs[0, XA.PHI]) / (2 * np.pi))
         xs[0] = x0
-        us[:, UA.SLACK] = 0.0
-        return xs, us
+        return xs
 
     def _failed(
         self,
@@ -249,8 +332,10 @@ class Planner:
         iters: int,
         solve_time: float,
         beta: np.ndarray | None,
+        on_command: Callable[[DriveCommand], None] | None = None,
     ) -> SolveResult:
         """Fallback to the shifted previous plan; brake after too many failures in a row."""
+        self._prepared = None
         self._failures += 1
         N = self.horizon
         beta_arr = np.zeros(N) if beta is None else np.asarray(beta, dtype=float)
@@ -278,8 +363,11 @@ class Planner:
         if not np.all(np.isfinite(u0)):
             u0 = np.zeros(NU)
         self._u_applied = u0
+        command = DriveCommand(float(u0[U.V_L]), float(u0[U.DELTA]))
+        if on_command is not None:
+            on_command(command)
         return SolveResult(
-            command=DriveCommand(float(u0[U.V_L]), float(u0[U.DELTA])),
+            command=command,
             states=np.asarray(xs[:, : len(S)], dtype=float),
             inputs=np.asarray(us[:, :NU], dtype=float),
             status=status,

@@ -5,6 +5,11 @@ once per planner period (a state arriving sooner than ``MIN_PERIOD_FRACTION * dt
 the last solve is skipped, the next one is used). A state older than ``stale_state_s``
 (by its ``source_stamp_s`` against this machine's wall clock) or none at all for that long
 gives a braking command (speed 0), never a guess. Stamps are wall-clock seconds.
+
+Order of one tick, shortest pose-to-command path first: solve, publish ``cmd/drive`` (from
+inside ``Planner.step``, before its result record is assembled), pause
+``command_yield_s`` so the command leaves, then publish ``planner/plan`` and prepare the
+next tick's warm start (``Planner.prepare``).
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from services.planner.planner import BRAKING, SOLVED, Planner, SolveResult
+from services.planner.planner import BRAKING, SOLVED, DriveCommand, Planner, SolveResult
 from shared.bus import Bus, DropReporter
 from shared.config import RacestackConfig
 from shared.messages import DriveCmd, LogEvent, Plan, State
@@ -52,10 +57,11 @@ def plan_message(res: SolveResult, stamp_s: float, source_stamp_s: float) -> Pla
 class PlannerShell:
     """Turns states into commands and plans; brakes on stale, invalid or missing state."""
 
-    def __init__(self, planner: Planner, bus: Bus, stale_s: float) -> None:
+    def __init__(self, planner: Planner, bus: Bus) -> None:
         self.planner = planner
         self.period = planner.settings.dt_s
-        self.stale_s = stale_s
+        self.stale_s = planner.settings.stale_state_s
+        self.command_yield_s = planner.settings.command_yield_s
         self.cmd_pub = bus.publisher(bus.keys.drive_cmd, DriveCmd)
         self.plan_pub = bus.publisher(bus.keys.plan, Plan)
         self.log_pub = bus.publisher(bus.keys.events_log, LogEvent)
@@ -63,6 +69,7 @@ class PlannerShell:
         self.last_state = time.monotonic()
         self.braking = True
         self.steering = 0.0
+        self.cmd_stamp = 0.0  #: wall-clock stamp of the last command published [s]
 
     def say(self, level: str, text: str) -> None:
         """Log locally and on ``events/log``."""
@@ -72,6 +79,15 @@ class PlannerShell:
     def brake(self) -> None:
         """Command speed 0, steering held."""
         self.cmd_pub.put(DriveCmd(stamp_s=time.time(), speed_mps=0.0, steering_rad=self.steering))
+
+    def publish_command(self, cmd: DriveCommand) -> None:
+        """Publish the command of this tick (the planner calls it before assembling its
+        result record, to keep that work off the pose-to-command path)."""
+        self.cmd_stamp = time.time()
+        self.steering = cmd.steering_rad
+        self.cmd_pub.put(
+            DriveCmd(stamp_s=self.cmd_stamp, speed_mps=cmd.speed_mps, steering_rad=self.steering)
+        )
 
     def on_state(self, st: State) -> None:
         """Plan from one state: stale or invalid -> brake; else solve (rate-limited)."""
@@ -86,13 +102,11 @@ class PlannerShell:
         if time.monotonic() - self.last_solve < MIN_PERIOD_FRACTION * self.period:
             return
         self.last_solve = time.monotonic()
-        res = self.planner.step(st.x_m, st.y_m, st.yaw_rad)
-        self.steering = res.command.steering_rad
-        stamp = time.time()
-        self.cmd_pub.put(
-            DriveCmd(stamp_s=stamp, speed_mps=res.command.speed_mps, steering_rad=self.steering)
-        )
-        self.plan_pub.put(plan_message(res, stamp, st.source_stamp_s))
+        res = self.planner.step(st.x_m, st.y_m, st.yaw_rad, on_command=self.publish_command)
+        if self.command_yield_s > 0.0:  # let the command go out before the rest of the work
+            time.sleep(self.command_yield_s)
+        self.plan_pub.put(plan_message(res, self.cmd_stamp, st.source_stamp_s))
+        self.planner.prepare()  # the next tick's warm start, off the pose-to-command path
         if self.braking:
             self.say("info", "state fresh: racing")
             self.braking = False
@@ -118,7 +132,7 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     )
     planner = Planner(track, cfg.planner, cfg.curvature)
     with Bus(cfg.bus, SERVICE) as bus:
-        shell = PlannerShell(planner, bus, cfg.planner.stale_state_s)
+        shell = PlannerShell(planner, bus)
         drops = DropReporter(bus, SERVICE, publisher=shell.log_pub)
         states = bus.subscribe(bus.keys.state, State)
         log.info("ready; waiting for %s", bus.keys.state)

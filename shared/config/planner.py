@@ -124,6 +124,14 @@ class PlannerSettings(Section):
     stale_state_s: float = Field(
         0.1, gt=0.0, le=5.0, description="planner service: state older than this -> brake"
     )
+    command_yield_s: float = Field(
+        0.001,
+        ge=0.0,
+        le=0.02,
+        description="planner service: after publishing a command, leave the CPU this long "
+        "before the plan record and the next warm start, so the command leaves at once "
+        "(matters on machines with few cores; 0: no pause)",
+    )
 
     def weights(self, method: str | None = None) -> MethodWeights:
         """The weight set of `method` (default: the configured one)."""

@@ -111,11 +111,14 @@ class Real(Spec):
     allow_inf: bool = False
 
     def check(self, where: str, value: Any) -> float | None:
-        if value is None and self.optional:
+        if type(value) is float:  # the common case, without the ABC checks
+            x = value
+        elif value is None and self.optional:
             return None
-        if not _is_number(value):
+        elif not _is_number(value):
             raise MessageError("bad_type", f"{where}: expected a number, got {_tname(value)}")
-        x = float(value)
+        else:
+            x = float(value)
         if math.isnan(x) or (math.isinf(x) and not self.allow_inf):
             raise MessageError("not_finite", f"{where}: {x} is not finite")
         if not self.lo <= x <= self.hi:
@@ -135,6 +138,12 @@ class Int(Spec):
     optional: bool = False
 
     def check(self, where: str, value: Any) -> int | None:
+        if type(value) is int:  # the common case, without the ABC checks
+            if not self.lo <= value <= self.hi:
+                raise MessageError(
+                    "out_of_range", f"{where}: {value} outside [{self.lo}, {self.hi}]"
+                )
+            return value
         if value is None and self.optional:
             return None
         if not isinstance(value, numbers.Integral) or isinstance(value, bool | np.bool_):
@@ -375,9 +384,8 @@ class Message:
             REGISTRY[tag] = cls
 
     def __post_init__(self) -> None:
-        name = type(self).__name__
-        for fname, spec, _ in field_specs(type(self)):
-            value = spec.check(f"{name}.{fname}", getattr(self, fname))
+        for fname, spec, where in _checks(type(self)):
+            value = spec.check(where, getattr(self, fname))
             object.__setattr__(self, fname, value)
         self._check()
 
@@ -403,7 +411,7 @@ class Message:
 
     def with_seq(self, seq: int) -> Self:
         """A copy with another sequence number (no re-validation of the other fields)."""
-        Int(0, 2**63 - 1).check(f"{type(self).__name__}.seq", seq)
+        _SEQ.check(f"{type(self).__name__}.seq", seq)
         out = copy.copy(self)
         object.__setattr__(out, "seq", int(seq))
         return out
@@ -428,6 +436,20 @@ class Message:
     def fields_doc(cls) -> list[tuple[str, str]]:
         """(field name, type/range description) of every field, for documentation."""
         return [(fname, spec.describe()) for fname, spec, _ in field_specs(cls)]
+
+
+_SEQ = Int(0, 2**63 - 1)
+_CHECK_CACHE: dict[type, tuple[tuple[str, Spec, str], ...]] = {}
+
+
+def _checks(cls: type) -> tuple[tuple[str, Spec, str], ...]:
+    """(name, spec, "Class.name") of every field of `cls`: what ``__post_init__`` checks."""
+    checks = _CHECK_CACHE.get(cls)
+    if checks is None:
+        checks = _CHECK_CACHE[cls] = tuple(
+            (fname, spec, f"{cls.__name__}.{fname}") for fname, spec, _ in field_specs(cls)
+        )
+    return checks
 
 
 def field_specs(cls: type) -> tuple[tuple[str, Spec, bool], ...]:
@@ -487,12 +509,14 @@ def from_wire(wire: dict[str, Any], expected: type[M] | None = None) -> M | Mess
             "wrong_version", f"{cls.TYPE}: version {v!r}, this build reads {cls.VERSION}"
         )
     kwargs: dict[str, Any] = {}
-    for fname, spec, required in field_specs(cls):
+    for (fname, spec, required), (_, _, where) in zip(
+        field_specs(cls), _checks(cls), strict=True
+    ):
         if fname not in wire:
             if required:
-                raise MessageError("missing_field", f"{cls.__name__}.{fname} is missing")
+                raise MessageError("missing_field", f"{where} is missing")
             continue
-        kwargs[fname] = spec.from_wire(f"{cls.__name__}.{fname}", wire[fname])
+        kwargs[fname] = spec.from_wire(where, wire[fname])
     try:
         return cls(**kwargs)
     except MessageError:

@@ -45,6 +45,7 @@ class Track:
     length_m: float = field(init=False)
     heading_rad: np.ndarray = field(init=False, repr=False)
     _closed: tuple = field(init=False, repr=False)
+    _segments: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         xy = np.ascontiguousarray(self.xy, dtype=float)
@@ -76,6 +77,11 @@ class Track:
         for arr in closed:
             arr.setflags(write=False)
         object.__setattr__(self, "_closed", closed)
+        # segment i runs from point i to point i+1 (the last one closes the loop)
+        segments = (seg, seg_len * seg_len, seg_len)
+        for arr in segments:
+            arr.setflags(write=False)
+        object.__setattr__(self, "_segments", segments)
 
     # ------------------------------------------------------------------ basic geometry
     @property
@@ -160,20 +166,24 @@ class Track:
         p = np.asarray(points, dtype=float)
         single = p.ndim == 1
         p = np.atleast_2d(p)
-        a = self.xy
-        b = np.roll(self.xy, -1, axis=0)
-        if s_hint is not None and 2 * window_m < self.length_m:
-            ds = np.mod(self.s_m - s_hint + 0.5 * self.length_m, self.length_m)
-            ds -= 0.5 * self.length_m
-            idx = np.flatnonzero(np.abs(ds) <= window_m)
-            if idx.size == 0:
-                idx = np.arange(self.n_points)
-        else:
+        idx = self._window(s_hint, window_m)
+        seg_vec, seg_len2, seg_len = self._segments
+        if idx is None:
             idx = np.arange(self.n_points)
-        a = a[idx]
-        b = b[idx]
-        ab = b - a
-        ab2 = np.einsum("ij,ij->i", ab, ab)
+            a, ab, ab2, ab_len = self.xy, seg_vec, seg_len2, seg_len
+        else:
+            a, ab, ab2, ab_len = self.xy[idx], seg_vec[idx], seg_len2[idx], seg_len[idx]
+        if single:  # the per-tick case: plain vector maths, no (m, n, 2) temporaries
+            px, py = float(p[0, 0]), float(p[0, 1])
+            ax, ay, bx, by = a[:, 0], a[:, 1], ab[:, 0], ab[:, 1]
+            t1 = np.clip(((px - ax) * bx + (py - ay) * by) / ab2, 0.0, 1.0)
+            dx = px - (ax + t1 * bx)
+            dy = py - (ay + t1 * by)
+            k1 = int(np.argmin(dx * dx + dy * dy))
+            i = int(idx[k1])
+            h = self.heading_rad[i]
+            s1 = (self.s_m[i] + t1[k1] * ab_len[k1]) % self.length_m
+            return np.float64(s1), np.float64(np.sin(h) * dx[k1] - np.cos(h) * dy[k1])
         s_out = np.empty(p.shape[0])
         e_out = np.empty(p.shape[0])
         for chunk in range(0, p.shape[0], 256):
@@ -186,13 +196,29 @@ class Track:
             rows = np.arange(q.shape[0])
             seg = idx[k]
             tk = t[rows, k]
-            s_out[chunk : chunk + 256] = np.mod(self.s_m[seg] + tk * np.sqrt(ab2[k]), self.length_m)
+            s_out[chunk : chunk + 256] = np.mod(self.s_m[seg] + tk * ab_len[k], self.length_m)
             d = q - closest[rows, k]
             h = self.heading_rad[seg]
             e_out[chunk : chunk + 256] = np.sin(h) * d[:, 0] - np.cos(h) * d[:, 1]
         if single:
             return s_out[0], e_out[0]
         return s_out, e_out
+
+    def _window(self, s_hint: float | None, window_m: float) -> np.ndarray | None:
+        """Indices of the points with arc length within `window_m` of `s_hint` (wrapped),
+        None for all points (no hint, a window covering the lap, or no point in it)."""
+        if s_hint is None or not 2 * window_m < self.length_m:
+            return None
+        L = self.length_m
+        lo = float(np.mod(s_hint - window_m, L))
+        hi = float(np.mod(s_hint + window_m, L))
+        i_lo = int(np.searchsorted(self.s_m, lo, side="left"))
+        i_hi = int(np.searchsorted(self.s_m, hi, side="right"))
+        if lo <= hi:
+            idx = np.arange(i_lo, i_hi)
+        else:  # the window wraps past the start line (ascending, as ties go to the first)
+            idx = np.concatenate([np.arange(0, i_hi), np.arange(i_lo, self.n_points)])
+        return idx if idx.size else None
 
     def is_inside(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
         """Whether points [m] lie within the boundaries shrunk by `margin_m` [m]."""

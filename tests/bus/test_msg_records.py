@@ -455,3 +455,21 @@ def test_edge_values_accepted() -> None:
 
 def _kwargs(msg: Message) -> dict[str, Any]:
     return {name: getattr(msg, name) for name, _, _ in field_specs(type(msg))}
+
+
+def test_numbers_of_any_numeric_type_are_normalised() -> None:
+    """Plain floats and ints take a fast path; numpy scalars and ints still validate and
+    are stored as Python numbers; NaN and out-of-range values fail on every path."""
+    for x in (1.5, np.float64(1.5), np.float32(1.5), 1, np.int64(1)):
+        c = DriveCmd(stamp_s=x, speed_mps=x, steering_rad=0.1, seq=np.int32(3))
+        assert type(c.stamp_s) is float and type(c.speed_mps) is float and type(c.seq) is int
+        assert c.speed_mps == float(x) and c.seq == 3
+    for bad, reason in ((float("nan"), "not_finite"), (np.float64("inf"), "not_finite"),
+                        (-1.0, "out_of_range"), (np.float64(-1.0), "out_of_range")):
+        with pytest.raises(MessageError) as info:
+            DriveCmd(stamp_s=bad, speed_mps=0.0, steering_rad=0.0)
+        assert info.value.reason == reason
+    for bad_seq, reason in ((-1, "out_of_range"), (True, "bad_type"), (2**63, "out_of_range")):
+        with pytest.raises(MessageError) as info:
+            DriveCmd(stamp_s=0.0, speed_mps=0.0, steering_rad=0.0, seq=bad_seq)
+        assert info.value.reason == reason

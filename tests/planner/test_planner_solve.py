@@ -222,3 +222,41 @@ def test_mpcc_and_cimpcc_share_one_problem() -> None:
     assert a.method == "cimpcc" and b.method == "mpcc"
     # MPCC pulls toward u_ref = (3.3, 0, 3.0): slower than CiMPCC's v_up on a straight
     assert b.inputs[:, 0].mean() < a.inputs[:, 0].mean()
+
+
+def test_prepare_ahead_changes_nothing_and_the_command_comes_first() -> None:
+    """``prepare()`` between ticks (as the service does) gives the very same plans as
+    ``step`` alone, for both beta modes; ``on_command`` gets the result's command, once,
+    before ``step`` returns, also on the fallback and braking paths."""
+    track = stadium()
+    for mode in ("current", "per_stage"):
+        settings = PlannerSettings(solver=SolverSettings(compile=False), beta_mode=mode)
+        alone = Planner(track, settings)
+        ahead = Planner(track, settings, problem=alone.problem, solver=alone.solver)
+        F = discretise(kinematic_bicycle(settings.wheelbase_m), settings.dt_s)
+        x = np.array([0.5, 0.1, 0.05, 0.0])
+        for k in range(40):
+            got: list = []
+            pose = (float("nan"), 0.0, 0.0) if k in (12, 13) else tuple(x[:3])
+            a = alone.step(*pose)
+            b = ahead.step(*pose, on_command=got.append)
+            ahead.prepare()
+            ahead.prepare()  # idempotent
+            assert got == [b.command]
+            assert a.status == b.status
+            assert a.command == b.command
+            np.testing.assert_array_equal(a.states, b.states)
+            np.testing.assert_array_equal(a.beta, b.beta)
+            if a.status == SOLVED:
+                x = step_numpy(F, x, np.array([a.command.speed_mps, a.command.steering_rad, 0.0]))
+        assert a.status == SOLVED and x[0] > 5.0  # recovered after the two bad poses
+
+
+def test_prepare_after_reset_and_before_any_solve_is_harmless() -> None:
+    planner = Planner(stadium(), UNCOMPILED)
+    planner.prepare()  # nothing to shift yet
+    assert planner.step(10.0, 0.0, 0.0).status == SOLVED
+    planner.prepare()
+    planner.reset()
+    res = planner.step(12.0, 0.0, 0.0)  # a cold start again, not the stale prepared plan
+    assert res.status == SOLVED and res.states[0, 0] == pytest.approx(12.0)

@@ -243,3 +243,23 @@ def test_bad_map_yaml(tmp_path: Path) -> None:
     (tmp_path / "n.yaml").write_text("resolution: 0.05\n")
     with pytest.raises(TrackError, match="no 'image'"):
         load_ros_map(tmp_path / "n.yaml")
+
+
+@pytest.mark.parametrize("name", ["paperlike", "gentle"])
+def test_windowed_single_point_projection_matches_the_full_search(name: str) -> None:
+    """The per-tick path (one point, a window around a hint, also across the start line)
+    gives exactly what the full vectorised search gives."""
+    tr = load_track(name)
+    rng = np.random.default_rng(7)
+    s_true = np.concatenate([rng.uniform(0, tr.length_m, 400), [0.0, 1e-9, tr.length_m - 1e-9]])
+    pts = tr.point_at(s_true) + rng.normal(0.0, 0.3, (len(s_true), 2))
+    s_all, e_all = tr.project(pts)
+    L = tr.length_m
+    for i, p in enumerate(pts):
+        hint = float((s_true[i] + rng.normal(0.0, 1.0)) % L)
+        s1, e1 = tr.project(p, s_hint=hint, window_m=5.0)
+        s0, e0 = tr.project(p)
+        assert np.ndim(s1) == 0 and np.ndim(e1) == 0
+        assert e1 == pytest.approx(e_all[i], abs=1e-12) and e0 == pytest.approx(e1, abs=1e-12)
+        ds = (s1 - s_all[i] + L / 2) % L - L / 2
+        assert abs(ds) < 1e-9 and abs((s0 - s1 + L / 2) % L - L / 2) < 1e-9
