@@ -21,8 +21,13 @@ Rules this module enforces (see ``/work/shared/docs/zenoh-rerun-notes.md``):
   to a thread-safe latest-value slot and/or a bounded queue that drops the oldest. Invalid
   payloads are dropped and counted per key and reason (``DropCounter``), logged once per
   burst; no exception ever escapes into Zenoh's thread.
+* A latency-critical input (the bridge's poses, the planner's states) is a
+  ``ChannelSubscription`` instead: Zenoh queues samples in a ring channel without running
+  Python on its thread, and the consumer's own thread blocks in ``recv`` (GIL released)
+  and decodes there. Measured on 2 cores at 40 Hz: round trip 0.55-0.59 ms median,
+  0.95-0.97 ms p99, against 0.66-0.69 / 1.27-1.40 ms for callback + hand-over.
 * ``Bus.close`` (and ``__exit__``) always closes the session: a process with a callback
-  subscriber never exits while its session is open.
+  subscriber never exits while its session is open; a thread in ``recv`` returns None.
 """
 
 from __future__ import annotations
@@ -347,30 +352,17 @@ class Subscription(Generic[M]):
     # -- Zenoh thread ------------------------------------------------------------
     def on_sample(self, sample: zenoh.Sample) -> None:
         """The Zenoh callback: decode, validate, hand over. Never raises."""
-        key = self.key
+        got = _decode_sample(sample, self.key, self.msg_type, self._drops)
+        if got is None:
+            return
         try:
-            key = str(sample.key_expr)
-            if sample.kind != zenoh.SampleKind.PUT:
-                self._drops.record(key, "not_put", f"sample kind {sample.kind}")
-                return
-            data = sample.payload.to_bytes()
-            try:
-                msg = decode(data, self.msg_type) if self.msg_type else decode_any(data)
-            except MessageError as exc:
-                self._drops.record(key, exc.reason, exc.detail)
-                return
-            self._deliver(key, msg)  # type: ignore[arg-type]
+            self._deliver(*got)  # type: ignore[arg-type]
         except Exception as exc:  # never into Zenoh's thread
-            try:
-                self._drops.record(key, "internal_error", f"{type(exc).__name__}: {exc}")
-            except Exception:  # pragma: no cover - logging itself failed
-                pass
+            _record_internal(self._drops, got[0], exc)
 
     def _deliver(self, key: str, msg: M) -> None:
-        last = self._last_seq.get(key)
-        if last is not None and msg.seq > last + 1:
-            self.seq_gaps += msg.seq - last - 1
-        self._last_seq[key] = msg.seq
+        gaps = _count_seq(self._last_seq, key, msg)
+        self.seq_gaps += gaps
         self.received += 1
         self._slot.put(msg)
         if self._queue is not None:
@@ -421,6 +413,111 @@ class Subscription(Generic[M]):
         if self.raw is not None:
             self.raw.undeclare()
             self.raw = None
+
+
+def _decode_sample(
+    sample: zenoh.Sample,
+    key: str,
+    msg_type: type[M] | None,
+    drops: DropCounter,
+) -> tuple[str, M] | None:
+    """(key, record) of a sample, or None after counting why it was dropped. Never raises."""
+    try:
+        key = str(sample.key_expr)
+        if sample.kind != zenoh.SampleKind.PUT:
+            drops.record(key, "not_put", f"sample kind {sample.kind}")
+            return None
+        data = sample.payload.to_bytes()
+        try:
+            msg = decode(data, msg_type) if msg_type else decode_any(data)
+        except MessageError as exc:
+            drops.record(key, exc.reason, exc.detail)
+            return None
+        return key, msg  # type: ignore[return-value]
+    except Exception as exc:  # never into Zenoh's thread, never into a service loop
+        _record_internal(drops, key, exc)
+        return None
+
+
+def _record_internal(drops: DropCounter, key: str, exc: Exception) -> None:
+    try:
+        drops.record(key, "internal_error", f"{type(exc).__name__}: {exc}")
+    except Exception:  # pragma: no cover - logging itself failed
+        pass
+
+
+def _count_seq(last_seq: dict[str, int], key: str, msg: Message) -> int:
+    """Records missed on `key` before `msg`, by sequence number (and remember it)."""
+    last = last_seq.get(key)
+    last_seq[key] = msg.seq
+    if last is not None and msg.seq > last + 1:
+        return msg.seq - last - 1
+    return 0
+
+
+class ChannelSubscription(Generic[M]):
+    """Records of one key, received by a blocking ``recv`` in the consumer's own thread.
+
+    For a service's latency-critical input: Zenoh keeps the newest ``capacity`` samples in a
+    ring channel without running Python on its own thread; ``recv`` waits in Zenoh with the
+    GIL released, then decodes and validates in the calling thread. Invalid payloads are
+    counted in the bus's ``DropCounter`` and skipped. One consumer thread only; stop it by
+    closing the ``Bus`` (``recv`` then returns None), not by undeclaring.
+
+    Attributes:
+        received: valid records received.
+        seq_gaps: records missed according to the sequence numbers (one publisher per key);
+            a full channel also drops the oldest, which shows up here.
+    """
+
+    def __init__(
+        self, raw: zenoh.Subscriber[Any], key: str, msg_type: type[M], drops: DropCounter
+    ) -> None:
+        self.raw = raw
+        self.key = key
+        self.msg_type = msg_type
+        self._drops = drops
+        self._last_seq: dict[str, int] = {}
+        self.received = 0
+        self.seq_gaps = 0
+
+    def recv(self) -> M | None:
+        """The next valid record, waiting as long as it takes; None once the bus is closed."""
+        while True:
+            try:
+                sample = self.raw.recv()
+            except zenoh.ZError:  # the channel is closed: the session was closed
+                return None
+            got = self._accept(sample)
+            if got is not None:
+                return got
+
+    def try_recv(self) -> M | None:
+        """The next valid record if one is queued, else None (never waits)."""
+        while True:
+            try:
+                sample = self.raw.try_recv()
+            except zenoh.ZError:
+                return None
+            if sample is None:
+                return None
+            got = self._accept(sample)
+            if got is not None:
+                return got
+
+    def _accept(self, sample: zenoh.Sample) -> M | None:
+        got = _decode_sample(sample, self.key, self.msg_type, self._drops)
+        if got is None:
+            return None
+        key, msg = got
+        self.seq_gaps += _count_seq(self._last_seq, key, msg)
+        self.received += 1
+        return msg
+
+    @property
+    def dropped(self) -> int:
+        """Invalid payloads dropped on this subscription's key."""
+        return self._drops.count(self.key)
 
 
 # --------------------------------------------------------------------------- the bus
@@ -555,6 +652,16 @@ class Bus:
         sub: Subscription[M] = Subscription(key, msg_type, self.drops, callback, queue_size)
         sub.raw = self.session.declare_subscriber(key, sub.on_sample)
         return sub
+
+    def subscribe_channel(
+        self, key: str, msg_type: type[M], *, capacity: int = 1
+    ) -> ChannelSubscription[M]:
+        """Subscribe to `key` for a consumer thread that blocks in ``recv`` (see
+        ``ChannelSubscription``); the channel keeps the newest `capacity` samples."""
+        if capacity < 1:
+            raise ValueError("capacity must be >= 1")
+        raw = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        return ChannelSubscription(raw, key, msg_type, self.drops)
 
     def put_raw(self, key: str, payload: bytes) -> None:
         """Publish raw bytes on `key`, bypassing the contract (tests and tools only)."""

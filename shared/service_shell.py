@@ -22,6 +22,57 @@ Body = Callable[[RacestackConfig, argparse.Namespace, threading.Event], int]
 AddArgs = Callable[[argparse.ArgumentParser], None]
 
 
+class Worker:
+    """A service's latency-critical loop on its own thread, watched by the main thread.
+
+    The main thread keeps signals, the stop event and the periodic chores (watchdogs, drop
+    reports); the worker blocks on its input (``ChannelSubscription.recv``) and reacts at
+    once. An exception in the worker sets `stop` and is re-raised in the main thread by
+    ``check()`` / ``join()``, so a crash still ends the service with an error; after `stop`
+    was set by someone else (shutdown: the bus is closing under the worker), it is only
+    logged.
+    """
+
+    def __init__(self, name: str, loop: Callable[[], None], stop: threading.Event) -> None:
+        self._loop = loop
+        self._stop = stop
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except BaseException as exc:
+            if self._stop.is_set():
+                logging.getLogger(__name__).debug(
+                    "%s ended during shutdown: %r", self._thread.name, exc
+                )
+            else:
+                self._error = exc
+                self._stop.set()
+
+    def start(self) -> Worker:
+        """Start the thread; returns self."""
+        self._thread.start()
+        return self
+
+    @property
+    def alive(self) -> bool:
+        """True while the loop runs."""
+        return self._thread.is_alive()
+
+    def check(self) -> None:
+        """Re-raise the worker's exception, if it died of one."""
+        if self._error is not None:
+            raise self._error
+
+    def join(self, timeout_s: float) -> bool:
+        """Wait up to `timeout_s` [s] for the loop to end, then ``check()``; True if it ended."""
+        self._thread.join(timeout_s)
+        self.check()
+        return not self._thread.is_alive()
+
+
 def install_stop_handlers(stop: threading.Event) -> None:
     """SIGINT and SIGTERM set `stop` (main thread only); a second SIGINT exits at once."""
 

@@ -1,10 +1,12 @@
 """The planner service: ``state`` in, ``cmd/drive`` and ``planner/plan`` out, over Zenoh.
 
-Event-driven: each new ``State`` is planned at once (low pose-to-command latency), at most
+Event-driven: a worker thread blocks on ``state`` (``Bus.subscribe_channel``) and plans each
+new ``State`` at once (low pose-to-command latency), at most
 once per planner period (a state arriving sooner than ``MIN_PERIOD_FRACTION * dt_s`` after
 the last solve is skipped, the next one is used). A state older than ``stale_state_s``
 (by its ``source_stamp_s`` against this machine's wall clock) or none at all for that long
-gives a braking command (speed 0), never a guess. Stamps are wall-clock seconds.
+gives a braking command (speed 0), never a guess: the main thread checks every period.
+Stamps are wall-clock seconds.
 
 Order of one tick, shortest pose-to-command path first: solve, publish ``cmd/drive`` (from
 inside ``Planner.step``, before its result record is assembled), pause
@@ -23,10 +25,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from services.planner.planner import BRAKING, SOLVED, DriveCommand, Planner, SolveResult
-from shared.bus import Bus, DropReporter
+from shared.bus import Bus, ChannelSubscription, DropReporter
 from shared.config import RacestackConfig
 from shared.messages import DriveCmd, LogEvent, Plan, State
-from shared.service_shell import run_service
+from shared.service_shell import Worker, run_service
 from shared.track import load_track
 
 log = logging.getLogger(__name__)
@@ -70,6 +72,7 @@ class PlannerShell:
         self.braking = True
         self.steering = 0.0
         self.cmd_stamp = 0.0  #: wall-clock stamp of the last command published [s]
+        self._lock = threading.Lock()  # the state worker and the main thread's watchdog
 
     def say(self, level: str, text: str) -> None:
         """Log locally and on ``events/log``."""
@@ -114,8 +117,18 @@ class PlannerShell:
             level = "error" if res.status == BRAKING else "warning"
             self.say(level, f"solver {res.status}: {res.solver_status}")
 
+    def consume(self, states: ChannelSubscription[State]) -> None:
+        """The worker loop: plan from every state as it arrives, until the bus closes."""
+        while (st := states.recv()) is not None:
+            with self._lock:
+                self.on_state(st)
+
     def on_silence(self) -> None:
-        """No state arrived this period: brake once none came for stale_s."""
+        """The watchdog (every period): brake once no state came for stale_s."""
+        with self._lock:
+            self._check_silence()
+
+    def _check_silence(self) -> None:
         if time.monotonic() - self.last_state > self.stale_s:
             if not self.braking:
                 self.say("warning", f"no state for {self.stale_s * 1e3:.0f} ms: braking")
@@ -134,16 +147,14 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     with Bus(cfg.bus, SERVICE) as bus:
         shell = PlannerShell(planner, bus)
         drops = DropReporter(bus, SERVICE, publisher=shell.log_pub)
-        states = bus.subscribe(bus.keys.state, State)
+        states = bus.subscribe_channel(bus.keys.state, State)
+        worker = Worker("planner-states", lambda: shell.consume(states), stop).start()
         log.info("ready; waiting for %s", bus.keys.state)
-        while not stop.is_set():
+        while not stop.wait(shell.period):
             drops.poll()
-            st = states.wait(timeout_s=shell.period)
-            if st is not None:
-                shell.on_state(st)
-            else:
-                shell.on_silence()
+            shell.on_silence()
         log.info("stopping")
+    worker.join(timeout_s=2.0)  # the closed bus ends it; re-raises if it crashed
     return 0
 
 

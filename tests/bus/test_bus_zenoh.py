@@ -230,3 +230,54 @@ print("closed", flush=True)
     )
     assert proc.returncode == 0, proc.stderr
     assert "closed" in proc.stdout
+
+
+def test_channel_subscription_recv_in_a_worker_thread(hub: Bus, peer: Bus) -> None:
+    """The latency-critical input: records come out of ``recv`` in the consumer's thread,
+    garbage and wrong types are counted and skipped, and closing the bus ends ``recv``."""
+    chan = peer.subscribe_channel(peer.keys.pose, Pose, capacity=8)
+    assert chan.try_recv() is None
+    pub = hub.publisher(hub.keys.pose, Pose)
+    assert pub.wait_matching(WAIT_S)
+    got: list[Pose | None] = []
+    done = threading.Event()
+
+    def consume() -> None:
+        while (p := chan.recv()) is not None:
+            got.append(p)
+        got.append(None)
+        done.set()
+
+    worker = threading.Thread(target=consume, daemon=True)
+    worker.start()
+    pub.put(Pose(stamp_s=1.0, x_m=1.0, y_m=2.0, yaw_rad=0.5, cov=None))
+    hub.put_raw(hub.keys.pose, b"\xc1garbage")
+    hub.put_raw(hub.keys.pose, DriveCmd(stamp_s=1.0, speed_mps=1.0, steering_rad=0.0).encode())
+    pub.put(Pose(stamp_s=2.0, x_m=1.5, y_m=2.0, yaw_rad=0.5, cov=None))
+    assert _until(lambda: len(got) == 2)
+    assert [p.stamp_s for p in got if p] == [1.0, 2.0] and [p.seq for p in got if p] == [0, 1]
+    assert chan.received == 2 and chan.seq_gaps == 0
+    assert _until(lambda: chan.dropped == 2)
+    assert peer.drops.count(peer.keys.pose, "not_msgpack") == 1
+    assert peer.drops.count(peer.keys.pose, "wrong_type") == 1
+    peer.close()
+    assert done.wait(WAIT_S), "recv did not return after the bus closed"
+    worker.join(WAIT_S)
+    assert got[-1] is None and chan.recv() is None and chan.try_recv() is None
+
+
+def test_channel_subscription_keeps_the_newest(hub: Bus, peer: Bus) -> None:
+    chan = peer.subscribe_channel(peer.keys.pose, Pose, capacity=1)
+    pub = hub.publisher(hub.keys.pose, Pose, reliable=True)
+    assert pub.wait_matching(WAIT_S)
+    pub.put(Pose(stamp_s=0.0, x_m=0.0, y_m=0.0, yaw_rad=0.0, cov=None))
+    assert _until(lambda: chan.received == 1 or chan.try_recv() is not None)
+    probe = peer.subscribe(peer.keys.pose, Pose, queue_size=8)
+    for k in range(1, 6):
+        pub.put(Pose(stamp_s=float(k), x_m=0.0, y_m=0.0, yaw_rad=0.0, cov=None))
+    assert _until(lambda: probe.received == 5)  # all of them have arrived here too
+    last = chan.try_recv()
+    assert last is not None and last.stamp_s == 5.0 and chan.try_recv() is None
+    assert chan.seq_gaps == 4  # the four overwritten ones
+    with pytest.raises(ValueError):
+        peer.subscribe_channel(peer.keys.pose, Pose, capacity=0)
