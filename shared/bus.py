@@ -293,9 +293,8 @@ class TypedPublisher(Generic[M]):
         with self._lock:
             seq = self._next_seq
             self._next_seq += 1
-        stamped = record.with_seq(seq)
-        self.raw.put(stamped.encode())
-        return stamped
+        self.raw.put(record.encode(seq))  # sent first; the stamped copy is for the caller
+        return record.with_seq(seq)
 
     @property
     def next_seq(self) -> int:

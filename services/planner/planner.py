@@ -149,6 +149,8 @@ class Planner:
             "ubg": ca.DM(pr.ubg),
         }
         self._p_cache: tuple[MethodWeights, np.ndarray] | None = None
+        #: (w_right, w_left) [m] of the narrowest section (the off-track check's shortcut)
+        self._narrowest = (float(np.min(track.w_right_m)), float(np.min(track.w_left_m)))
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -274,10 +276,11 @@ class Planner:
         ever more speed to get back sooner; a real car would slide further. Not part of the
         paper's method; applies to every method alike.
         """
-        w_r, w_l = self.track.interp_width(s0)
-        outside = e0 > float(w_r) or e0 < -float(w_l)
         cap = self.settings.off_track_speed_mps
-        if outside and abs(speed) > cap:
+        if abs(speed) <= cap or -self._narrowest[1] <= e0 <= self._narrowest[0]:
+            return speed, False  # inside even the narrowest section: no lookup needed
+        w_r, w_l = self.track.interp_width(s0)
+        if e0 > float(w_r) or e0 < -float(w_l):
             return float(np.clip(speed, -cap, cap)), True
         return speed, False
 

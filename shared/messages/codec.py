@@ -423,9 +423,12 @@ class Message:
             wire[fname] = spec.to_wire(getattr(self, fname))
         return wire
 
-    def encode(self) -> bytes:
-        """The msgpack bytes of this record."""
-        return msgpack.packb(self.to_wire(), use_bin_type=True)
+    def encode(self, seq: int | None = None) -> bytes:
+        """The msgpack bytes of this record, or of its copy with sequence number `seq`."""
+        wire = self.to_wire()
+        if seq is not None:
+            wire["seq"] = _SEQ.check(f"{type(self).__name__}.seq", seq)
+        return msgpack.packb(wire, use_bin_type=True)
 
     @classmethod
     def decode(cls, data: bytes | bytearray | memoryview) -> Self:

@@ -260,3 +260,18 @@ def test_prepare_after_reset_and_before_any_solve_is_harmless() -> None:
     planner.reset()
     res = planner.step(12.0, 0.0, 0.0)  # a cold start again, not the stale prepared plan
     assert res.status == SOLVED and res.states[0, 0] == pytest.approx(12.0)
+
+
+def test_off_the_track_the_speed_command_is_capped() -> None:
+    """The safety rule outside the optimisation: outside the boundaries |speed| <= the cap
+    (and the result says so); inside, the solver's speed is passed through."""
+    track = stadium()
+    settings = PlannerSettings(solver=SolverSettings(compile=False), off_track_speed_mps=0.7)
+    planner = Planner(track, settings)
+    inside = [planner.step(5.0 + 0.15 * k, 0.0, 0.0) for k in range(20)][-1]
+    assert not inside.speed_limited and inside.command.speed_mps > 0.7
+    for y in (-0.8, 0.8):  # right of, then left of the bottom straight (w = 0.6 m)
+        res = planner.step(8.0, y, 0.0)  # warm: the plan still asks for racing speed
+        assert res.e_con_m == pytest.approx(-y, abs=1e-9)
+        assert res.inputs[0, 0] > 0.7 and res.speed_limited
+        assert res.command.speed_mps == pytest.approx(0.7)
