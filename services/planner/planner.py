@@ -44,14 +44,13 @@ class _Prepared:
     """The next tick's measurement-independent work (see ``Planner.prepare``).
 
     Attributes:
-        xs: (N+1, 7) previous states shifted one stage, the last extrapolated with the model
-            (progress and heading not yet aligned with the next pose).
-        us: (N, 4) previous inputs shifted one stage, slack zeroed.
+        w: (n_w,) the decision vector of the previous solution shifted one stage, its last
+            stage extrapolated with the model, slack zeroed (progress and heading not yet
+            aligned with the next pose).
         beta: (N,) per-stage beta at the shifted progress, or None (beta at the car only).
     """
 
-    xs: np.ndarray
-    us: np.ndarray
+    w: np.ndarray
     beta: np.ndarray | None
 
 
@@ -149,6 +148,11 @@ class Planner:
             "ubg": ca.DM(pr.ubg),
         }
         self._p_cache: tuple[MethodWeights, np.ndarray] | None = None
+        # where progress and heading of every stage, and xa_0, sit in the decision vector
+        self._w_progress = np.array([pr.state_index(k).start for k in range(pr.horizon + 1)])
+        self._w_phi = self._w_progress + XA.PHI
+        self._w_progress += XA.PROGRESS
+        self._w_first = pr.state_index(0)
         #: (w_right, w_left) [m] of the narrowest section (the off-track check's shortcut)
         self._narrowest = (float(np.min(track.w_right_m)), float(np.min(track.w_left_m)))
         self.reset()
@@ -187,7 +191,7 @@ class Planner:
         beta = None
         if self.settings.beta_mode == "per_stage":  # periodic in s: no lap alignment needed
             beta = np.asarray(self.profile.beta_at(xs[: pr.horizon, XA.PROGRESS]), dtype=float)
-        self._prepared = _Prepared(xs, us, beta)
+        self._prepared = _Prepared(pr.pack(xs, us), beta)
 
     def step(
         self,
@@ -221,13 +225,13 @@ class Planner:
         self.prepare()
         prep, self._prepared = self._prepared, None
         if prep is None:
-            xs_ws, us_ws, beta = self._cold_guess(x0)
+            xs_ws, us_ws = self._cold_guess(x0)
+            w0, beta, s_pred = pr.pack(xs_ws, us_ws), None, xs_ws[:N, XA.PROGRESS]
         else:
-            xs_ws, us_ws, beta = self._align(prep, x0), prep.us, prep.beta
+            w0, beta, s_pred = self._align(prep.w, x0), prep.beta, None
         if beta is None:
-            beta = self._beta(s0, xs_ws[:N, XA.PROGRESS])
+            beta = self._beta(s0, s_pred)
         p = self._parameters(x0, beta)
-        w0 = pr.pack(xs_ws, us_ws)
 
         t0 = self._timer()
         try:
@@ -284,9 +288,9 @@ class Planner:
             return float(np.clip(speed, -cap, cap)), True
         return speed, False
 
-    def _beta(self, s0: float, s_pred: np.ndarray) -> np.ndarray:
+    def _beta(self, s0: float, s_pred: np.ndarray | None) -> np.ndarray:
         """beta per stage (N,): all g(NSC(s0)) (paper) or g(NSC(s_k)) of the warm start."""
-        if self.settings.beta_mode == "per_stage":
+        if self.settings.beta_mode == "per_stage" and s_pred is not None:
             return np.asarray(self.profile.beta_at(s_pred), dtype=float)
         return np.full(self.horizon, float(self.profile.beta_at(s0)))
 
@@ -302,7 +306,7 @@ class Planner:
         p[layout.slices["beta"]] = beta
         return p
 
-    def _cold_guess(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, None]:
+    def _cold_guess(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """First-solve guess: a model rollout from x0 at INITIAL_GUESS_SPEED_MPS."""
         pr = self.problem
         N = pr.horizon
@@ -315,16 +319,17 @@ class Planner:
             nxt = np.asarray(pr.step(xs[k, : len(S)], us[k, :NU])).reshape(-1)
             xs[k + 1, : len(S)] = nxt
             xs[k + 1, len(S) :] = us[k, :NU]
-        return xs, us, None
+        return xs, us
 
-    def _align(self, prep: _Prepared, x0: np.ndarray) -> np.ndarray:
-        """The shifted states aligned with x0: whole laps in s, whole turns in phi, xa_0 = x0."""
-        xs = prep.xs
+    def _align(self, w: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """The shifted decision vector aligned with x0, in place: whole laps in s, whole
+        turns in phi, xa_0 = x0."""
+        prog, phi, first = self._w_progress, self._w_phi, self._w_first
         L = self.track.length_m
-        xs[:, XA.PROGRESS] += L * round((x0[XA.PROGRESS] - xs[0, XA.PROGRESS]) / L)
-        xs[:, XA.PHI] += 2 * np.pi * round((x0[XA.PHI] - xs[0, XA.PHI]) / (2 * np.pi))
-        xs[0] = x0
-        return xs
+        w[prog] += L * round((x0[XA.PROGRESS] - w[prog[0]]) / L)
+        w[phi] += 2 * np.pi * round((x0[XA.PHI] - w[phi[0]]) / (2 * np.pi))
+        w[first] = x0
+        return w
 
     def _failed(
         self,
