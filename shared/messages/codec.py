@@ -511,21 +511,45 @@ def from_wire(wire: dict[str, Any], expected: type[M] | None = None) -> M | Mess
         raise MessageError(
             "wrong_version", f"{cls.TYPE}: version {v!r}, this build reads {cls.VERSION}"
         )
-    kwargs: dict[str, Any] = {}
-    for (fname, spec, required), (_, _, where) in zip(
-        field_specs(cls), _checks(cls), strict=True
-    ):
-        if fname not in wire:
-            if required:
-                raise MessageError("missing_field", f"{where} is missing")
-            continue
-        kwargs[fname] = spec.from_wire(where, wire[fname])
+    # Build the record directly (what the constructor does, each field set once): every
+    # field from the wire or its default, validated by its spec, then the cross-field checks.
+    obj = object.__new__(cls)
     try:
-        return cls(**kwargs)
+        for fname, spec, required, where, default in _wire_fields(cls):
+            if fname in wire:
+                value = spec.check(where, spec.from_wire(where, wire[fname]))
+            elif required:
+                raise MessageError("missing_field", f"{where} is missing")
+            else:
+                value = default
+            object.__setattr__(obj, fname, value)
+        obj._check()
     except MessageError:
         raise
     except Exception as exc:  # defensive: a validator bug must still be a MessageError
         raise MessageError("bad_value", f"{cls.__name__}: {type(exc).__name__}: {exc}") from None
+    return obj
+
+
+_WIRE_CACHE: dict[type, tuple[tuple[str, Spec, bool, str, Any], ...]] = {}
+
+
+def _wire_fields(cls: type) -> tuple[tuple[str, Spec, bool, str, Any], ...]:
+    """(name, spec, required on the wire, "Class.name", default) of every field (cached);
+    a default is already validated (by the spec) once, here."""
+    out = _WIRE_CACHE.get(cls)
+    if out is None:
+        defaults = {f.name: f.default for f in fields(cls)}
+        rows = []
+        for (fname, spec, required), (_, _, where) in zip(
+            field_specs(cls), _checks(cls), strict=True
+        ):
+            default = defaults[fname]
+            if not required:
+                default = spec.check(where, default)
+            rows.append((fname, spec, required, where, default))
+        out = _WIRE_CACHE[cls] = tuple(rows)
+    return out
 
 
 def _decode(data: bytes | bytearray | memoryview, expected: type[M] | None) -> Message:
