@@ -32,8 +32,9 @@ from shared.track import Track
 
 #: Status of a result: a fresh solution, the shifted previous plan, or a braking command.
 SOLVED, FALLBACK, BRAKING = "solved", "fallback", "braking"
-#: Half-width of the arc-length window searched around the previous projection [m]
-#: (0.5 s at 10 m/s; a pose jump beyond it is found again by a full search next tick).
+#: Half-width of the arc-length window searched around the previous projection when the
+#: nearby search (``Track.project_near``, +-1 m) finds its minimum at its edge [m]
+#: (0.5 s at 10 m/s).
 PROJECTION_WINDOW_M = 5.0
 #: Speed [m/s] of the rollout that seeds the very first solve.
 INITIAL_GUESS_SPEED_MPS = 1.0
@@ -213,10 +214,12 @@ class Planner:
             return self._failed(
                 np.zeros(NU + 1), 0.0, 0.0, "non-finite pose", 0, 0.0, None, on_command
             )
-        s0, e0 = self.track.project(
-            np.array([x_m, y_m]), s_hint=self._s_prev, window_m=PROJECTION_WINDOW_M
-        )
-        s0, e0 = float(s0), float(e0)
+        if self._s_prev is None:
+            s0, e0 = (float(v) for v in self.track.project(np.array([x_m, y_m])))
+        else:  # near the last projection, falling back to PROJECTION_WINDOW_M and beyond
+            s0, e0 = self.track.project_near(
+                x_m, y_m, self._s_prev, fallback_window_m=PROJECTION_WINDOW_M
+            )
         self._s_prev = s0
         x0 = np.empty(len(XA))
         x0[XA.X], x0[XA.Y], x0[XA.PHI], x0[XA.PROGRESS] = x_m, y_m, yaw_rad, s0

@@ -263,3 +263,25 @@ def test_windowed_single_point_projection_matches_the_full_search(name: str) -> 
         assert e1 == pytest.approx(e_all[i], abs=1e-12) and e0 == pytest.approx(e1, abs=1e-12)
         ds = (s1 - s_all[i] + L / 2) % L - L / 2
         assert abs(ds) < 1e-9 and abs((s0 - s1 + L / 2) % L - L / 2) < 1e-9
+
+
+@pytest.mark.parametrize("name", ["paperlike", "gentle"])
+def test_project_near_gives_what_project_gives(name: str) -> None:
+    """The planner's per-tick projection (plain Python, +-1 m around the hint) equals the
+    windowed numpy one: near hints, across the start line, and with far hints (fallback)."""
+    tr = load_track(name)
+    L = tr.length_m
+    rng = np.random.default_rng(3)
+    s_true = np.concatenate([rng.uniform(0, L, 500), [0.0, 1e-9, L - 1e-9, L - 0.3, 0.3]])
+    pts = tr.point_at(s_true) + rng.normal(0.0, 0.3, (len(s_true), 2))
+    for i, p in enumerate(pts):
+        for spread in (0.2, 3.0):  # 3 m: often past the +-1 m search, so the fallback runs
+            hint = float((s_true[i] + rng.normal(0.0, spread)) % L)
+            s1, e1 = tr.project_near(float(p[0]), float(p[1]), hint)
+            s0, e0 = tr.project(p, s_hint=hint, window_m=5.0)
+            assert isinstance(s1, float) and isinstance(e1, float)
+            assert e1 == pytest.approx(float(e0), abs=1e-12)
+            assert abs((s1 - float(s0) + L / 2) % L - L / 2) < 1e-9
+    s_nan, e_nan = tr.project_near(1.0, 2.0, float("nan"))  # no usable hint: full search
+    s_all, e_all = tr.project(np.array([1.0, 2.0]))
+    assert (s_nan, e_nan) == (float(s_all), float(e_all))
