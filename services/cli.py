@@ -28,14 +28,14 @@ def _cmd_laps(args: argparse.Namespace) -> int:
     """Race the planner against its own kinematic model and print lap times."""
     import numpy as np
 
+    from services.planner.methods import make_planner
     from services.planner.model import discretise, kinematic_bicycle, step_numpy
-    from services.planner.planner import Planner
     from shared.track import load_track
 
     cfg = load_config(args.config)
     track = load_track(args.track or cfg.track.source)
     settings = cfg.planner.model_copy(update={"method": args.method or cfg.planner.method})
-    planner = Planner(track, settings, cfg.curvature)
+    planner = make_planner(track, settings, cfg.curvature)
     F = discretise(kinematic_bicycle(settings.wheelbase_m), settings.dt_s, settings.integrator)
     x = np.array([*track.xy[0], track.heading_rad[0], 0.0])
     L, progress, s_last, t, lap_start, laps = track.length_m, 0.0, 0.0, 0.0, 0.0, 0
@@ -137,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     laps = sub.add_parser("laps", help="planner vs its own kinematic model, lap times")
     laps.add_argument("--config", help="TOML configuration file")
     laps.add_argument("--track", help="built-in name, folder or centreline file")
-    laps.add_argument("--method", choices=["cimpcc", "mpcc"])
+    laps.add_argument("--method", choices=["cimpcc", "mpcc", "raceline"])
     laps.add_argument("--laps", type=int, default=2)
     laps.set_defaults(handler=_cmd_laps)
     return ap

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 from services.bench.results import LapRecord, MethodRun, Trace
 from services.planner.planner import SOLVED, Planner
+from services.planner.raceline import RacelinePlanner
 from services.simulator import Command, LapTimer, Simulator
 from services.simulator.laps import centreline_pose
 from services.simulator.state import rear_axle
@@ -54,7 +55,7 @@ Progress = Callable[[int, int], None]
 
 def run_method(
     name: str,
-    planner: Planner,
+    planner: Planner | RacelinePlanner,
     track: Track,
     sim_settings: SimulatorSettings,
     opts: LoopOptions,

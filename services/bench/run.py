@@ -7,9 +7,11 @@ Methods:
 - ``mpcc``: the paper's MPCC weights (``[planner.mpcc]``, u_ref = (3.3, 0, 3.0));
 - ``mpcc-tuned``: MPCC with its progress-speed reference swept (v_l ref = 1.1 x v_p ref) over
   a few laps each; then the full run at the fastest value whose laps were all completed with
-  no off-track event. The chosen value and the sweep are recorded in results.json.
+  no off-track event. The chosen value and the sweep are recorded in results.json;
+- ``raceline``: the RDM+OTG-like baseline (``[planner.raceline]``): a minimum-curvature line
+  with a speed profile, tracked by pure pursuit (``services/planner/raceline.py``).
 
-All methods share one built (and compiled) problem: they differ only in parameters.
+The MPC methods share one built (and compiled) problem: they differ only in parameters.
 """
 
 from __future__ import annotations
@@ -27,11 +29,12 @@ from services.bench.figures import write_figures
 from services.bench.results import MethodRun, results_document, write_results
 from services.bench.table import format_paper_table, format_table
 from services.planner.planner import Planner
+from services.planner.raceline import RacelinePlanner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.planner import MethodWeights
 from shared.track import TrackError, load_track
 
-METHODS = ("cimpcc", "mpcc", "mpcc-tuned")
+METHODS = ("cimpcc", "mpcc", "mpcc-tuned", "raceline")
 #: Progress-speed references [m/s] tried by mpcc-tuned (v_l ref = 1.1 x v_p ref).
 DEFAULT_SWEEP_MPS = (2.2, 2.4, 2.6, 2.8, 3.0, 3.2, 3.4)
 
@@ -159,15 +162,20 @@ def run_bench(
     for name in methods:
         t0 = time.perf_counter()
         method = "cimpcc" if name == "cimpcc" else "mpcc"
-        planner = Planner(
-            track,
-            cfg.planner,
-            cfg.curvature,
-            method=method,
-            problem=base.problem,
-            solver=base.solver,
-        )
+        planner: Planner | RacelinePlanner
         extra: dict = {}
+        if name == "raceline":
+            planner = RacelinePlanner(track, cfg.planner, cfg.curvature)
+            extra = {"profile_lap_time_s": round(planner.raceline.lap_time_s, 3)}
+        else:
+            planner = Planner(
+                track,
+                cfg.planner,
+                cfg.curvature,
+                method=method,
+                problem=base.problem,
+                solver=base.solver,
+            )
         if name == "mpcc-tuned":
             chosen, rows = sweep_mpcc(planner, track, cfg, opts, sweep_values, sweep_laps)
             timings["mpcc-tuned sweep"] = time.perf_counter() - t0

@@ -24,7 +24,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from services.planner.methods import make_planner
 from services.planner.planner import BRAKING, SOLVED, DriveCommand, Planner, SolveResult
+from services.planner.raceline import RacelinePlanner
 from shared.bus import Bus, ChannelSubscription, DropReporter
 from shared.config import RacestackConfig
 from shared.messages import DriveCmd, LogEvent, Plan, State
@@ -59,7 +61,7 @@ def plan_message(res: SolveResult, stamp_s: float, source_stamp_s: float) -> Pla
 class PlannerShell:
     """Turns states into commands and plans; brakes on stale, invalid or missing state."""
 
-    def __init__(self, planner: Planner, bus: Bus) -> None:
+    def __init__(self, planner: Planner | RacelinePlanner, bus: Bus) -> None:
         self.planner = planner
         self.period = planner.settings.dt_s
         self.stale_s = planner.settings.stale_state_s
@@ -143,7 +145,7 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     log.info(
         "building the %s planner on %s (compiled problem cached)", cfg.planner.method, track.name
     )
-    planner = Planner(track, cfg.planner, cfg.curvature)
+    planner = make_planner(track, cfg.planner, cfg.curvature)
     with Bus(cfg.bus, SERVICE) as bus:
         shell = PlannerShell(planner, bus)
         drops = DropReporter(bus, SERVICE, publisher=shell.log_pub)

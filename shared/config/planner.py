@@ -85,10 +85,35 @@ class SolverSettings(Section):
     mu_init: float = Field(1e-3, gt=0.0, le=1e3)
 
 
+class RacelineSettings(Section):
+    """The raceline baseline (``services/planner/raceline.py``): path, speed, tracker."""
+
+    ds_m: float = Field(0.1, gt=0.01, le=1.0, description="spacing of the raceline points [m]")
+    margin_m: float = Field(
+        0.3, ge=0.0, le=2.0, description="keep the line this far inside the boundaries [m]"
+    )
+    a_lat_mps2: float = Field(5.5, gt=0.0, le=50.0, description="lateral acceleration limit")
+    a_accel_mps2: float = Field(4.0, gt=0.0, le=50.0, description="acceleration limit [m/s^2]")
+    a_brake_mps2: float = Field(5.0, gt=0.0, le=50.0, description="braking limit [m/s^2]")
+    v_max_mps: float = Field(4.18, gt=0.0, le=20.0, description="speed cap (CiMPCC's v_l up)")
+    curvature_smoothing_points: int = Field(
+        3, ge=1, le=50, description="half-width of the moving average on the line's curvature"
+    )
+    lookahead_base_m: float = Field(0.3, ge=0.0, le=10.0, description="pure pursuit l_0 [m]")
+    lookahead_gain_s: float = Field(0.2, ge=0.0, le=5.0, description="pure pursuit k [s]")
+    lookahead_min_m: float = Field(0.4, gt=0.0, le=10.0)
+    lookahead_max_m: float = Field(2.0, gt=0.0, le=20.0)
+    speed_preview_s: float = Field(
+        0.1, ge=0.0, le=2.0, description="command the profile speed this far ahead [s]"
+    )
+
+
 class PlannerSettings(Section):
     """The CiMPCC / MPCC planner: one problem, two weight sets."""
 
-    method: Literal["cimpcc", "mpcc"] = "cimpcc"
+    method: Literal["cimpcc", "mpcc", "raceline"] = Field(
+        "cimpcc", description="the planner the service runs ('raceline': the baseline)"
+    )
     cimpcc: MethodWeights = CIMPCC_WEIGHTS
     mpcc: MethodWeights = MPCC_WEIGHTS
     horizon_steps: int = Field(10, ge=2, le=60, description="N_p = N_c")
@@ -115,6 +140,7 @@ class PlannerSettings(Section):
         3, ge=1, le=100, description="failed solves in a row before the planner brakes"
     )
     solver: SolverSettings = SolverSettings()
+    raceline: RacelineSettings = RacelineSettings()
     off_track_speed_mps: float = Field(
         1.5,
         ge=0.0,

@@ -89,7 +89,7 @@ class InputCol(IntEnum):
 
 
 PLAN_STATUSES = ("solved", "fallback", "braking")
-PLAN_METHODS = ("cimpcc", "mpcc")
+PLAN_METHODS = ("cimpcc", "mpcc", "raceline")
 LAP_KINDS = ("start", "lap", "off_track", "back_on_track")
 LOG_LEVELS = ("debug", "info", "warning", "error")
 SIM_ACTIONS = ("reset", "pause", "resume")
@@ -265,7 +265,7 @@ class Plan(Message):
         status: "solved" | "fallback" (shifted previous plan) | "braking".
         solver_status: the solver back-end's own status text (<= 200 chars).
         iterations: solver iterations; solve_time_ms: wall time of the solve [ms].
-        method: "cimpcc" | "mpcc".
+        method: "cimpcc" | "mpcc" | "raceline".
         s_m: the car's progress [m]; e_con_m: its contour error [m] (right of centreline +).
         source_stamp_s: ``stamp_s`` of the State the plan was computed from [s].
         consecutive_failures: failed solves in a row, this one included.

@@ -22,7 +22,7 @@ def test_short_bench_run_writes_results_and_figures(tmp_path: Path, capsys) -> N
             "--laps",
             "2",
             "--methods",
-            "cimpcc,mpcc-tuned",
+            "cimpcc,mpcc-tuned,raceline",
             "--sweep",
             "2.4,2.6",
             "--sweep-laps",
@@ -35,7 +35,7 @@ def test_short_bench_run_writes_results_and_figures(tmp_path: Path, capsys) -> N
     doc = json.loads((out / "results.json").read_text())
     assert doc["track"] == "paperlike"
     assert doc["track_length_m"] == pytest.approx(42.53, abs=0.05)
-    assert set(doc["methods"]) == {"cimpcc", "mpcc-tuned"}
+    assert set(doc["methods"]) == {"cimpcc", "mpcc-tuned", "raceline"}
     for name, m in doc["methods"].items():
         assert m["completed_laps"] == 2, name
         assert len(m["laps"]) == 2
@@ -55,8 +55,10 @@ def test_short_bench_run_writes_results_and_figures(tmp_path: Path, capsys) -> N
         assert set(m["solve_time_ms"]) == {"median", "p95", "p99", "max"}
         assert 0 < m["solve_time_ms"]["median"] <= m["solve_time_ms"]["p99"]
         assert isinstance(m["solver_failures"], int)
-    # the paper's CiMPCC stays on the paper-like track
-    assert all(lap["off_track_events"] == 0 for lap in doc["methods"]["cimpcc"]["laps"])
+    # the paper's CiMPCC and the raceline baseline stay on the paper-like track
+    for name in ("cimpcc", "raceline"):
+        assert all(lap["off_track_events"] == 0 for lap in doc["methods"][name]["laps"])
+    assert 8.0 < doc["methods"]["raceline"]["profile_lap_time_s"] < 30.0
     tuned = doc["methods"]["mpcc-tuned"]
     assert tuned["chosen_v_p_ref_mps"] in (2.4, 2.6)
     assert tuned["u_ref"] == [
