@@ -40,14 +40,15 @@ class LoopOptions:
         delay_mode: "fixed" (use compute_delay_s) or "measured" (each tick's solve time).
         compute_delay_s: fixed compute delay [s] before a command acts.
         start_offset_m: the car starts this far past the start line [m].
-        max_lap_time_s: give up when a lap takes longer [s].
+        max_lap_time_s: give up when a lap takes longer [s]; None: 60 s, or a lap at
+            1 m/s on a longer track (the full-size F1TENTH maps are 260-460 m).
     """
 
     laps: int = 17
     delay_mode: str = "fixed"
     compute_delay_s: float = 0.002
     start_offset_m: float = 0.3
-    max_lap_time_s: float = 60.0
+    max_lap_time_s: float | None = None
 
 
 Progress = Callable[[int, int], None]
@@ -80,7 +81,8 @@ def run_method(
     timer.update(sim.t_s, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
     best_progress, last_progress_t = timer.progress_m, sim.t_s
     abort_reason = ""
-    t_limit = (opts.laps + 1.5) * opts.max_lap_time_s
+    max_lap = opts.max_lap_time_s or max(60.0, track.length_m / 1.0)
+    t_limit = (opts.laps + 1.5) * max_lap
     while len(laps) < opts.laps:
         st = sim.state
         px, py, pyaw = rear_axle(st.x_m, st.y_m, st.yaw_rad, lr)

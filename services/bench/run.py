@@ -157,6 +157,8 @@ def run_bench(
     track = load_track(track_spec)
     t_start = time.perf_counter()
     base = Planner(track, cfg.planner, cfg.curvature)
+    # built first: a track that allows no raceline is an error before anything races
+    baseline = RacelinePlanner(track, cfg.planner, cfg.curvature) if "raceline" in methods else None
     runs: list[MethodRun] = []
     timings: dict[str, float] = {}
     for name in methods:
@@ -164,8 +166,8 @@ def run_bench(
         method = "cimpcc" if name == "cimpcc" else "mpcc"
         planner: Planner | RacelinePlanner
         extra: dict = {}
-        if name == "raceline":
-            planner = RacelinePlanner(track, cfg.planner, cfg.curvature)
+        if baseline is not None and name == "raceline":
+            planner = baseline
             extra = {"profile_lap_time_s": round(planner.raceline.lap_time_s, 3)}
         else:
             planner = Planner(
@@ -275,17 +277,21 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
     opts = LoopOptions(
         laps=args.laps, delay_mode=args.delay, compute_delay_s=args.compute_delay_ms / 1e3
     )
-    doc = run_bench(
-        cfg,
-        track_spec,
-        methods,
-        args.laps,
-        out,
-        opts,
-        sweep,
-        args.sweep_laps,
-        figures=not args.no_figures,
-    )
+    try:
+        doc = run_bench(
+            cfg,
+            track_spec,
+            methods,
+            args.laps,
+            out,
+            opts,
+            sweep,
+            args.sweep_laps,
+            figures=not args.no_figures,
+        )
+    except TrackError as exc:  # e.g. no raceline on this track (raised before any race)
+        print(f"racestack bench: error: {exc}", file=sys.stderr)
+        return 2
     print(format_table(doc))
     print()
     print(format_paper_table())

@@ -36,9 +36,22 @@ import numpy as np
 from services.planner.planner import BRAKING, SOLVED, DriveCommand, SolveResult
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
 from shared.curvature import curvature_profile
-from shared.track import Track
+from shared.track import Track, TrackError
 
 METHOD = "raceline"
+#: IPOPT statuses accepted besides success: converged as far as its precision allows.
+NEAR_OPTIMAL = frozenset({"Solved_To_Acceptable_Level", "Search_Direction_Becomes_Too_Small"})
+
+
+#: Weight of the offset-smoothness term of the line's energy [1/m^3].
+SMOOTHNESS_WEIGHT = 1e-3
+#: The line keeps at most this share of the local bend radius on the inside of a bend.
+INSIDE_RADIUS_SHARE = 0.5
+
+
+class RacelineError(TrackError):
+    """No raceline can be built on this track with these settings (a clear, one-line error
+    in every shell, like any other unusable track)."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +117,7 @@ def min_curvature_offsets(
         lo, hi: (n,) bounds [m] (lo < 0 < hi).
 
     Raises:
-        RuntimeError: the solver failed.
+        RacelineError: the solver failed.
     """
     n = len(xy)
     alpha = ca.SX.sym("alpha", n)
@@ -119,17 +132,26 @@ def min_curvature_offsets(
     lab = ca.sqrt((ax + bx) ** 2 + (ay + by) ** 2)
     kappa = 2 * (ax * by - ay * bx) / (la * lb * lab)
     energy = ca.sum1(kappa**2 * 0.5 * (la + lb))
+    # a little smoothness of the offsets keeps IPOPT well conditioned where the coarse
+    # source polyline has kinks (1e-3 per m^2 of offset change: negligible elsewhere)
+    energy += SMOOTHNESS_WEIGHT * ca.sumsqr(alpha[idx_next] - alpha)
     solver = ca.nlpsol(
         "raceline_nlp",
         "ipopt",
         {"x": alpha, "f": energy},
         {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-         "ipopt.max_iter": 500, "ipopt.tol": 1e-8},
+         "ipopt.max_iter": 500, "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4,
+         "ipopt.acceptable_iter": 10},
     )
     sol = solver(x0=np.zeros(n), lbx=lo, ubx=hi)
-    if not solver.stats().get("success", False):
-        raise RuntimeError(f"minimum-curvature line failed: {solver.stats().get('return_status')}")
-    return np.clip(np.asarray(sol["x"], dtype=float).reshape(-1), lo, hi)
+    stats = solver.stats()
+    alpha_opt = np.asarray(sol["x"], dtype=float).reshape(-1)
+    status = str(stats.get("return_status", "unknown"))
+    # "steps too small to matter" is IPOPT's way of saying it cannot improve further
+    done = stats.get("success", False) or status in NEAR_OPTIMAL
+    if not done or not np.all(np.isfinite(alpha_opt)):
+        raise RacelineError("raceline", f"no minimum-curvature line (IPOPT: {status})")
+    return np.clip(alpha_opt, lo, hi)
 
 
 def speed_profile(
@@ -160,12 +182,29 @@ def build_raceline(track: Track, settings: RacelineSettings) -> Raceline:
     xy, normals, w_r, w_l = resample(track, settings.ds_m)
     m = settings.margin_m
     lo, hi = -(w_r - m), w_l - m
+    # on the inside of a bend no further than INSIDE_RADIUS_SHARE of its radius, so the
+    # moved points never fold over (neighbouring normals cross at the centre of curvature)
+    # (the raw curvature: the kinks of a coarse source polyline are the tightest bends)
+    bend = Track("resampled", xy, w_r, w_l).signed_curvature()
+    with np.errstate(divide="ignore"):
+        radius = np.where(np.abs(bend) > 1e-9, INSIDE_RADIUS_SHARE / np.abs(bend), np.inf)
+    hi = np.where(bend > 0, np.minimum(hi, radius), hi)
+    lo = np.where(bend < 0, np.maximum(lo, -radius), lo)
     if np.any(lo >= hi):
-        raise ValueError(f"raceline margin {m} m leaves no room where the track is narrowest")
-    alpha = min_curvature_offsets(xy, normals, lo, hi)
+        raise RacelineError(
+            track.source, f"raceline margin {m} m leaves no room where the track is narrowest"
+        )
+    try:
+        alpha = min_curvature_offsets(xy, normals, lo, hi)
+    except RacelineError as exc:
+        raise RacelineError(track.source, exc.problem) from None
     line = xy + alpha[:, None] * normals
-    line_track = Track(f"{track.name}-raceline", line, w_r + alpha, w_l - alpha,
-                       source=track.source)
+    try:
+        line_track = Track(f"{track.name}-raceline", line, w_r + alpha, w_l - alpha,
+                           source=track.source)
+    except TrackError as exc:
+        problem = f"the raceline is not a valid loop ({exc.problem})"
+        raise RacelineError(track.source, problem) from None
     kappa = line_track.signed_curvature()
     k = max(1, settings.curvature_smoothing_points)
     kappa = np.convolve(np.concatenate([kappa[-k:], kappa, kappa[:k]]),

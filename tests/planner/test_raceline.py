@@ -119,3 +119,32 @@ def test_the_planner_service_can_run_the_baseline() -> None:
     bad = planner.step(math.inf, 0.0, 0.0)
     assert plan_message(bad, 1.0, 0.9).status == BRAKING
     assert isinstance(make_planner(tr, PlannerSettings(method="mpcc")), Planner)
+
+
+@pytest.mark.slow
+def test_a_line_on_a_full_size_f1tenth_track(shared_tracks) -> None:
+    """The coarse (0.35 m) F1TENTH centrelines: the line stays regular and inside."""
+    tr = load_track(shared_tracks / "f1tenth" / "Oschersleben")
+    s = RacelineSettings()
+    rl = build_raceline(tr, s)
+    xy, _, w_r, w_l = resample(tr, s.ds_m)
+    assert np.all(rl.offset_m <= w_l - s.margin_m + 1e-9)
+    assert np.all(rl.offset_m >= -(w_r - s.margin_m) - 1e-9)
+    centre = Track("centre", xy, w_r, w_l)  # the same spacing as the line
+
+    def energy(t: Track) -> float:
+        return float(np.sum(t.signed_curvature() ** 2) * t.spacing_m)
+
+    assert energy(rl.track) < 0.5 * energy(centre)
+    assert 2.0 < rl.speed_mps.min() and rl.lap_time_s < tr.length_m / 2.0
+
+
+def test_no_room_for_a_raceline_is_a_track_error_in_the_bench(tmp_path, capsys) -> None:
+    from services.bench.run import main
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[planner.raceline]\nmargin_m = 0.7\n")
+    code = main(["--config", str(cfg), "--track", "paperlike", "--laps", "1",
+                 "--methods", "raceline", "--out", str(tmp_path / "out"), "--no-figures"])
+    assert code == 2
+    assert "no room" in capsys.readouterr().err
