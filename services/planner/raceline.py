@@ -107,7 +107,8 @@ def min_curvature_offsets(
     The line is ``p_i = xy_i + alpha_i * normals_i`` (closed). With ``a = p_i - p_(i-1)``,
     ``b = p_(i+1) - p_i``, the discrete (Menger) curvature at point i is
     ``kappa_i = 2 (a x b) / (|a| |b| |a + b|)``; minimise ``sum_i kappa_i^2 (|a| + |b|) / 2``
-    (the integral of kappa^2 along the line) subject to ``lo <= alpha <= hi``. Exact
+    (the integral of kappa^2 along the line) plus ``SMOOTHNESS_WEIGHT * sum_i
+    (alpha_(i+1) - alpha_i)^2``, subject to ``lo <= alpha <= hi``. Exact
     curvature, so cutting a corner on the inside is not mistaken for straightening it (the
     bias of second differences of the points); solved with IPOPT from alpha = 0.
 
