@@ -24,7 +24,6 @@ delivered p99 <= solve-time p99 + 2 ms.
 from __future__ import annotations
 
 import argparse
-import socket
 import sys
 import tempfile
 import threading
@@ -33,19 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from services.launcher.supervisor import Supervisor, service_argv
+from services.launcher.supervisor import Supervisor, free_loopback_port, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import DriveCmd, Odom, Plan, Pose, State
 from shared.track import load_track
 
 SERVICES = ("localization_bridge", "planner")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _stats(x: np.ndarray) -> dict[str, float]:
@@ -63,7 +56,7 @@ def run(
     """One measurement; returns arrays [ms] and counts (see ``summarise``)."""
     tmp = Path(tempfile.mkdtemp(prefix="racestack-latency-"))
     cfg_path = tmp / "bench.toml"
-    cfg_path.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{_free_port()}"]\n{extra_config}')
+    cfg_path.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_loopback_port()}"]\n{extra_config}')
     cfg = load_config(cfg_path)
     track = load_track(cfg.track.source)
     published: dict[float, float] = {}  # pose stamp -> publish time

@@ -22,7 +22,6 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -34,17 +33,13 @@ from typing import Any
 import numpy as np
 import psutil
 
+from services.launcher.supervisor import free_loopback_port
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Wait for the telemetry process to come up [s].
 START_TIMEOUT_S = 30.0
 #: Wait for it to exit after SIGINT before killing it [s].
 STOP_TIMEOUT_S = 20.0
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class CpuSampler:
@@ -112,7 +107,7 @@ def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
 
     track = load_track(track_spec)
     duration_s = laps * track.length_m / speed_mps
-    port = _free_port()
+    port = free_loopback_port()
     toml = out / "bench.toml"
     toml.write_text(f'[track]\nsource = "{track.source}"\n\n'
                     f'[bus]\ncar = "bench"\nlisten = ["tcp/127.0.0.1:{port}"]\n',

@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -40,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from services.launcher.supervisor import stop_process
+from services.launcher.supervisor import free_loopback_port, stop_process
 from services.vesc_driver.fake_vesc import FakeVesc
 from services.vesc_driver.protocol import CommandId
 from shared.bus import Bus
@@ -59,12 +58,6 @@ ERPM_LO, ERPM_HI = 2000, 22000
 WARMUP_ERPM = 1000
 #: Wait after the last command for its frame [s].
 DRAIN_S = 0.3
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def erpm_sequence(n: int) -> list[int]:
@@ -89,7 +82,7 @@ def measure(
     returns the latencies [ms] and counts."""
     gain = VescSettings().speed_to_erpm_gain
     erpms = erpm_sequence(n)
-    port = _free_port()
+    port = free_loopback_port()
     dev = tmp / f"dev-{mode}"
     dev.mkdir()
     toml = tmp / f"{mode}.toml"

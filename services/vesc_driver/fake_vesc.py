@@ -48,6 +48,17 @@ _IDLE_POLL_S = 0.005
 _MAX_EVENTS = 100_000
 
 
+def pty_available() -> bool:
+    """Whether this machine can open pseudo-terminals (what ``FakeVesc`` needs)."""
+    try:
+        m, s = os.openpty()
+    except OSError:
+        return False
+    os.close(m)
+    os.close(s)
+    return True
+
+
 @dataclass(frozen=True, slots=True)
 class FakeEvent:
     """One command seen by the fake.

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import faulthandler
-import socket
 import sys
 from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
 
+from services.launcher.supervisor import free_loopback_port
 from shared.messages import (
     DriveCmd,
     Imu,
@@ -138,13 +138,7 @@ def sample() -> Callable[[type[Message]], Message]:
     return lambda cls: SAMPLE_FACTORIES[cls]()
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @pytest.fixture
 def free_port() -> int:
     """A free TCP port on 127.0.0.1 (picked by binding port 0)."""
-    return _free_port()
+    return free_loopback_port()

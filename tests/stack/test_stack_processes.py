@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import signal
-import socket
 import threading
 import time
 from pathlib import Path
@@ -18,19 +17,13 @@ from pathlib import Path
 import msgpack
 import pytest
 
-from services.launcher.supervisor import Supervisor, service_argv
+from services.launcher.supervisor import Supervisor, free_loopback_port, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import Imu, LapEvent, LogEvent, SimControl, SimTruth
 
 pytestmark = pytest.mark.slow
 SERVICES = ("simulator", "localization_bridge", "planner")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Watcher:
@@ -75,7 +68,7 @@ class Watcher:
 def stack(tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("stack")
     cfg_path = tmp / "stack.toml"
-    cfg_path.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
+    cfg_path.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_loopback_port()}"]\n')
     cfg = load_config(cfg_path)
     sup = Supervisor(log_dir=tmp / "logs")
     with Bus(cfg.bus, "test", listen_default=True, mode="router") as bus:

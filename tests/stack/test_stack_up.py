@@ -9,7 +9,6 @@ from __future__ import annotations
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -20,22 +19,16 @@ import pyarrow as pa
 import pytest
 import rerun as rr
 
-from services.launcher.supervisor import stop_process
+from services.launcher.supervisor import free_loopback_port, stop_process
 from services.telemetry.report import lap_events, read_recording
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def write_config(tmp: Path) -> Path:
     cfg = tmp / "up.toml"
-    cfg.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
+    cfg.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_loopback_port()}"]\n')
     return cfg
 
 

@@ -5,12 +5,13 @@ from __future__ import annotations
 import faulthandler
 import math
 import os
-import socket
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
+from services.launcher.supervisor import free_loopback_port
 
 #: Hard limit of one telemetry test [s]: past it the stacks are dumped and the run ends.
 TEST_DEADLINE_S = 50.0
@@ -51,13 +52,6 @@ def write_circle_track(path: Path, radius_m: float = 1.2, n: int = 120,
 def tele_circle_csv(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small circular track (7.54 m: a lap takes about 2.2 s at 3.5 m/s)."""
     return write_circle_track(tmp_path_factory.mktemp("track") / "circle_centerline.csv")
-
-
-def free_loopback_port() -> int:
-    """A free TCP port on 127.0.0.1."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture

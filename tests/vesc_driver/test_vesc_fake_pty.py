@@ -5,7 +5,6 @@ Every test that starts threads stops them with a timeout (the fixture checks the
 
 from __future__ import annotations
 
-import os
 import threading
 import time
 from collections.abc import Iterator
@@ -16,7 +15,7 @@ import pytest
 import serial
 
 from services.vesc_driver.driver import TickResult, VescDriver
-from services.vesc_driver.fake_vesc import FakeVesc
+from services.vesc_driver.fake_vesc import FakeVesc, pty_available
 from services.vesc_driver.protocol import (
     CommandId,
     encode_frame,
@@ -31,17 +30,7 @@ from shared.config.vesc import VescSettings
 JOIN_TIMEOUT_S = 3.0
 
 
-def _have_pty() -> bool:
-    try:
-        m, s = os.openpty()
-    except OSError:
-        return False
-    os.close(m)
-    os.close(s)
-    return True
-
-
-pytestmark = pytest.mark.skipif(not _have_pty(), reason="needs pseudo-terminals (os.openpty)")
+pytestmark = pytest.mark.skipif(not pty_available(), reason="needs pseudo-terminals (os.openpty)")
 
 
 class Running:

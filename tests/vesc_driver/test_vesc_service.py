@@ -13,7 +13,6 @@ import math
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -25,8 +24,9 @@ from pathlib import Path
 import msgpack
 import pytest
 
+from services.launcher.supervisor import free_loopback_port
 from services.vesc_driver.driver import OdometryRecord
-from services.vesc_driver.fake_vesc import DEFAULT_VALUES, FakeEvent, FakeVesc
+from services.vesc_driver.fake_vesc import DEFAULT_VALUES, FakeEvent, FakeVesc, pty_available
 from services.vesc_driver.protocol import CommandId
 from services.vesc_driver.service import (
     _STATE_FIELDS,
@@ -49,27 +49,10 @@ WAIT_S = 3.0
 EVENT_INTERVAL_S = 0.2
 
 
-def _have_pty() -> bool:
-    try:
-        m, s = os.openpty()
-    except OSError:
-        return False
-    os.close(m)
-    os.close(s)
-    return True
-
-
-pytestmark = pytest.mark.skipif(not _have_pty(), reason="needs pseudo-terminals (os.openpty)")
+pytestmark = pytest.mark.skipif(not pty_available(), reason="needs pseudo-terminals (os.openpty)")
 
 
 # --------------------------------------------------------------------------- helpers
-def free_port() -> int:
-    """A free TCP port on 127.0.0.1."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def write_toml(path: Path, port: int, vesc_port: str, extra: str = "") -> Path:
     """A config with the hub endpoint, the VESC port and a short event interval."""
     path.write_text(
@@ -158,7 +141,7 @@ class Rig:
         self.fake: FakeVesc | None = None
         self.proc: subprocess.Popen[bytes] | None = None
         self.log_path = tmp / "vesc_driver.log"
-        port = free_port()
+        port = free_loopback_port()
         if vesc_port is None:
             (tmp / "dev").mkdir()
             self.fake = FakeVesc(link_dir=tmp / "dev")

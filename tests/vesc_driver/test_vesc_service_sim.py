@@ -10,7 +10,6 @@ processes are stopped by PID with a timeout in a ``finally``.
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -21,9 +20,10 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from services.launcher.supervisor import stop_process
+from services.launcher.supervisor import free_loopback_port, stop_process
 from services.simulator.vesc_actuation import VescActuation
 from services.vesc_driver.driver import VescDriver
+from services.vesc_driver.fake_vesc import pty_available
 from shared.bus import Bus
 from shared.config import ConfigError, load_config
 from shared.config.simulator import SimulatorSettings
@@ -35,23 +35,7 @@ START_TIMEOUT_S = 25.0
 STOP_TIMEOUT_S = 10.0
 
 
-def _have_pty() -> bool:
-    try:
-        m, s = os.openpty()
-    except OSError:
-        return False
-    os.close(m)
-    os.close(s)
-    return True
-
-
-pytestmark = pytest.mark.skipif(not _have_pty(), reason="needs pseudo-terminals (os.openpty)")
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+pytestmark = pytest.mark.skipif(not pty_available(), reason="needs pseudo-terminals (os.openpty)")
 
 
 def _start(module: str, toml: Path, log_path: Path) -> subprocess.Popen[bytes]:
@@ -84,7 +68,7 @@ def test_drive_commands_move_the_simulated_car_through_the_fake_vesc(tmp_path: P
     link = tmp_path / "racestack-fake-vesc"
     toml = tmp_path / "racestack.toml"
     toml.write_text(
-        f'[bus]\ncar = "vescsim"\nlisten = ["tcp/127.0.0.1:{_free_port()}"]\n\n'
+        f'[bus]\ncar = "vescsim"\nlisten = ["tcp/127.0.0.1:{free_loopback_port()}"]\n\n'
         f'[simulator]\nactuation = "fake_vesc"\nfake_vesc_link = "{link}"\n\n'
         "[simulator.lidar]\nrate_hz = 5.0\nbeams = 90\n\n"
         f'[vesc]\nport = "{link}"\nreconnect_backoff_max_s = 0.2\n',
