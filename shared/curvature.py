@@ -13,8 +13,13 @@ All functions are pure numpy over a CLOSED loop of points (indices wrap around).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from shared.config.planner import CurvatureSettings
+    from shared.track import Track
 
 
 def kappa(xy: np.ndarray) -> np.ndarray:
@@ -218,4 +223,11 @@ def curvature_profile(
         window=w,
         alpha=alpha,
         length_m=float(length_m),
+    )
+
+
+def track_profile(track: Track, settings: CurvatureSettings) -> CurvatureProfile:
+    """``curvature_profile`` of `track`'s centreline with the ``[curvature]`` settings."""
+    return curvature_profile(
+        track.xy, track.s_m, track.length_m, settings.window_m, settings.alpha
     )

@@ -27,7 +27,7 @@ from services.planner.model import NU, S, U
 from services.planner.problem import UA, XA, OcpProblem, build_problem
 from services.planner.solver import SolverHandle, make_solver
 from shared.config.planner import CurvatureSettings, MethodWeights, PlannerSettings
-from shared.curvature import CurvatureProfile, curvature_profile
+from shared.curvature import CurvatureProfile, track_profile
 from shared.track import Track
 
 #: Status of a result: a fresh solution, the shifted previous plan, or a braking command.
@@ -130,9 +130,7 @@ class Planner:
         self.method = method or settings.method
         self.weights = weights or settings.weights(self.method)
         curvature = curvature or CurvatureSettings()
-        self.profile: CurvatureProfile = curvature_profile(
-            track.xy, track.s_m, track.length_m, curvature.window_m, curvature.alpha
-        )
+        self.profile: CurvatureProfile = track_profile(track, curvature)
         self.problem = problem or build_problem(track, settings)
         self.solver = solver or make_solver(self.problem, settings.solver)
         self._timer = timer

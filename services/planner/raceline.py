@@ -29,13 +29,14 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
 
 from services.planner.planner import BRAKING, SOLVED, DriveCommand, SolveResult
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
-from shared.curvature import curvature_profile
+from shared.curvature import track_profile
 from shared.track import Track, TrackError
 
 METHOD = "raceline"
@@ -73,10 +74,14 @@ class Raceline:
 
     def speed_at(self, s_m: float) -> float:
         """Planned speed [m/s] at arc length `s_m` of the line (periodic)."""
-        t = self.track
-        s_cl = np.append(t.s_m, t.length_m)
-        v_cl = np.append(self.speed_mps, self.speed_mps[0])
-        return float(np.interp(s_m % t.length_m, s_cl, v_cl))
+        s_cl, v_cl = self._closed_speed
+        return float(np.interp(s_m % self.track.length_m, s_cl, v_cl))
+
+    @cached_property
+    def _closed_speed(self) -> tuple[np.ndarray, np.ndarray]:
+        """(s, v) with the first point repeated at the lap length (for interpolation)."""
+        return (np.append(self.track.s_m, self.track.length_m),
+                np.append(self.speed_mps, self.speed_mps[0]))
 
     @property
     def lap_time_s(self) -> float:
@@ -234,9 +239,7 @@ class RacelinePlanner:
         self.options = settings.raceline
         self.raceline = raceline or build_raceline(track, settings.raceline)
         curvature = curvature or CurvatureSettings()
-        self.profile = curvature_profile(
-            track.xy, track.s_m, track.length_m, curvature.window_m, curvature.alpha
-        )
+        self.profile = track_profile(track, curvature)
         self._timer = timer
         b = settings.bounds
         self._delta_lim = (b.delta_rad[0], b.delta_rad[1])

@@ -39,7 +39,7 @@ from services.bench.results import (
 from services.bench.table import format_table
 from services.telemetry.recorder import SIM_TIME, WALL_TIME
 from shared.config import ConfigError, load_config
-from shared.curvature import CurvatureProfile, curvature_profile
+from shared.curvature import CurvatureProfile, track_profile
 from shared.track import Track, TrackError, load_track
 
 _ROW_ID = "rerun.controls.RowId"
@@ -290,8 +290,7 @@ def build_report(
     data = read_recording(path)
     cfg = load_config(config)
     track = track_of(data, track_spec)
-    profile = curvature_profile(track.xy, track.s_m, track.length_m, cfg.curvature.window_m,
-                                cfg.curvature.alpha)
+    profile = track_profile(track, cfg.curvature)
     run = method_run(data, track, profile)
     doc = results_document(track.name, track.length_m, [run],
                            meta={"recording": str(data.path), "complete": data.complete,

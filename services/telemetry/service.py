@@ -39,7 +39,7 @@ from services.telemetry.recorder import Recorder
 from shared.bus import Bus
 from shared.config import RacestackConfig
 from shared.config.telemetry import TelemetrySettings
-from shared.curvature import curvature_profile
+from shared.curvature import track_profile
 from shared.keys import TOPIC_TYPES
 from shared.messages import REGISTRY
 from shared.service_shell import run_service
@@ -169,8 +169,7 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     """The service body (see the module docstring)."""
     tset = settings_of(cfg)
     track = load_track(cfg.track.source)
-    profile = curvature_profile(track.xy, track.s_m, track.length_m, cfg.curvature.window_m,
-                                cfg.curvature.alpha)
+    profile = track_profile(track, cfg.curvature)
     serve_port = args.serve if args.serve is not None else tset.serve_port
     want_viewer = bool(args.viewer or tset.viewer)
     if want_viewer and serve_port is None:
