@@ -32,30 +32,14 @@ Tyre model ``linear`` (the gym's, exactly the CommonRoad ST equations for v > 0)
 
 Linear tyres bound nothing: that model corners at any lateral acceleration.
 
-Tyre models ``linear_saturated`` (default) and ``pacejka`` add a friction limit and take the
-front force in the wheel frame (rotated by delta) instead of dropping ``cos(delta)`` and the
-``-F_yf sin(delta)`` drag. Body-frame accelerations and the state derivatives are then::
-
-    a_x = a - F_yf sin(delta) / m          a_y = (F_yf cos(delta) + F_yr) / m
-    v' = a_x cos(beta) + a_y sin(beta)     beta' = (a_y cos(beta) - a_x sin(beta)) / v - psi_dot
-    psi_dot' = (lf F_yf cos(delta) - lr F_yr) / I_z
-
-(identical to the linear-model equations to first order in beta and delta). The projection
-matters at the limit: with equal friction on both axles and the load-proportional force
-split below, the small-angle model is exactly neutral once both axles saturate (no yaw
-moment is left to stop a spin); ``cos(delta) < 1`` makes it settle front-limited
-(understeer), and the drag scrubs speed in a slide.
-
-Friction limit: the longitudinal force ``m a`` is split in proportion to the normal loads,
-``F_xi = F_zi a / g``, so both axles use the same fraction of their grip, and
-
-    |F_yi| <= sqrt((mu F_zi)^2 - F_xi^2) = F_zi sqrt(mu^2 - (a/g)^2)
-
-(``linear_saturated`` clips the linear force there), hence the lateral acceleration
-``a_y <= mu g``: a car entering a turn too fast runs wide (path radius ``>= v^2 / (mu g)``)
-instead of following the steering. ``pacejka`` uses the magic formula
-``F_yi = mu D_i F_zi sin(C_i atan(B_i alpha - E_i (B_i alpha - atan(B_i alpha))))`` scaled by
-``sqrt(1 - (a / (g mu D_i))^2)`` (same friction circle, peak ``mu D_i F_zi``).
+Tyre models ``linear_saturated`` (default) and ``pacejka`` are physical for any slip and
+speed: bounded slip angles from the contact-patch velocities (atan2), forces in the wheel
+frame, a friction ellipse (braking or driving reduces lateral grip) and brakes that oppose
+each wheel's rolling. Their equations, and where they come from, are in
+``shared.vehicle.single_track`` and ``shared.vehicle.tyres``, written once for this
+simulator and for the minimum-time optimal control problem. To first order in the angles
+they are the equations above; without a driving force the kinetic plus rotational energy
+never grows.
 
 Kinematic regime (|v| <= v_kin): the kinematic single-track at the CoG,
 ``beta_k = atan(lr tan(delta) / L)``, ``psi_dot_k = v cos(beta_k) tan(delta) / L``. The gym
@@ -68,11 +52,18 @@ when the dynamic model takes over. Between ``v_kin`` and ``v_kin + blend`` the t
 derivatives of ``psi_dot`` and ``beta`` are blended with ``w = 3u^2 - 2u^3``,
 ``u = (|v| - v_kin) / blend``.
 
-In the kinematic regime ``v' = a``; the blend applies to ``v'`` as well.
+In the kinematic regime the tyres roll without slipping, a workless constraint: when the
+yaw rate has to grow to follow the kinematic value, its energy comes out of the speed,
+``v' = a - max(I_z psi_dot psi_dot'_kin, 0) / (m v)``, so no regime creates energy
+without a driving force. The blend applies to ``v'`` as well.
 
-Limitations: small slip angles (the ST model's assumption); spins with large |beta| are
-qualitatively but not quantitatively right; no aerodynamic drag or rolling resistance, as in
-the gym.
+The state is kept canonical after every step (``Simulator``): ``|beta| <= pi/2``, a car
+sliding backwards has ``v < 0`` (``(v, beta)`` and ``(-v, beta -+ pi)`` are the same
+velocity).
+
+Limitations: no wheel-spin states (the speed loop acts on the CoG speed through the tyres'
+friction ellipse), no aerodynamic drag or rolling resistance, as in the gym; ``linear``
+keeps the gym's small-angle equations, valid for small slip only.
 """
 
 from __future__ import annotations
@@ -85,38 +76,19 @@ import numpy as np
 
 from services.simulator.state import NX, StateIndex, StateTuple
 from shared.config.vehicle import DynamicVehicleParams
+from shared.vehicle import FLOAT_OPS, GRAVITY_MPS2, axle_peak_friction, make_dynamic_derivatives
 
-#: Gravitational acceleration [m/s^2].
-GRAVITY_MPS2 = 9.81
 #: Time constant [s] with which psi_dot and beta follow the kinematic values at low speed.
 KINEMATIC_RELAX_S = 0.02
 #: RK4's stability region contains the left half-disc of radius 2.61; keep h |lambda| below.
 RK4_STABLE_HLAMBDA = 2.5
 
 
-def steering_rate_constraint(delta: float, sv: float, p: DynamicVehicleParams) -> float:
-    """Steering rate [rad/s] after the rate limits and the steering-angle end stops."""
-    if (delta <= p.steering_min_rad and sv <= 0.0) or (delta >= p.steering_max_rad and sv >= 0.0):
-        return 0.0
-    return min(max(sv, p.steering_rate_min_radps), p.steering_rate_max_radps)
-
-
 def friction_accel_limit(p: DynamicVehicleParams) -> float:
     """Largest |a| [m/s^2] the tyres transmit: mu_peak g (inf for ``linear`` tyres)."""
     if p.tyre_model == "linear":
         return math.inf
-    if p.tyre_model == "pacejka":
-        return p.mu * min(p.pacejka_front[2], p.pacejka_rear[2]) * GRAVITY_MPS2
-    return p.mu * GRAVITY_MPS2
-
-
-def acceleration_constraint(v: float, a: float, p: DynamicVehicleParams) -> float:
-    """Longitudinal acceleration [m/s^2] after the gym's limits and the friction limit."""
-    if (v <= p.v_min_mps and a <= 0.0) or (v >= p.v_max_mps and a >= 0.0):
-        return 0.0
-    pos_limit = p.accel_max_mps2 * p.v_switch_mps / v if v > p.v_switch_mps else p.accel_max_mps2
-    a_fric = friction_accel_limit(p)
-    return min(max(a, -p.accel_max_mps2, -a_fric), pos_limit, a_fric)
+    return min(axle_peak_friction(p, "front"), axle_peak_friction(p, "rear")) * GRAVITY_MPS2
 
 
 def blend_weight(speed_abs: float, v_kin: float, blend: float) -> float:
@@ -153,63 +125,6 @@ class TyreState:
         return abs(self.lateral_rear_n) >= self.lateral_max_rear_n * (1.0 - 1e-9)
 
 
-TyreLaw = Callable[[float, float, float, float, float], tuple[float, float, float, float]]
-
-
-def make_tyre_law(p: DynamicVehicleParams) -> TyreLaw:
-    """``law(alpha_f, alpha_r, F_zf, F_zr, a) -> (F_yf, F_yr, F_yf_max, F_yr_max)`` [N].
-
-    Slip angles [rad], normal loads [N], longitudinal acceleration [m/s^2]; the maxima are
-    the friction-circle limits (inf for ``linear``).
-    """
-    mu = p.mu
-    kf = mu * p.cornering_stiffness_front_per_rad
-    kr = mu * p.cornering_stiffness_rear_per_rad
-    g = GRAVITY_MPS2
-    sqrt = math.sqrt
-
-    if p.tyre_model == "linear":
-
-        def linear(alpha_f: float, alpha_r: float, fzf: float, fzr: float, a: float):
-            return kf * fzf * alpha_f, kr * fzr * alpha_r, math.inf, math.inf
-
-        return linear
-
-    if p.tyre_model == "linear_saturated":
-        mu2 = mu * mu
-
-        def saturated(alpha_f: float, alpha_r: float, fzf: float, fzr: float, a: float):
-            ag = a / g
-            mu_lat = sqrt(max(mu2 - ag * ag, 0.0))
-            f_max = mu_lat * fzf
-            r_max = mu_lat * fzr
-            fyf = kf * fzf * alpha_f
-            fyr = kr * fzr * alpha_r
-            fyf = f_max if fyf > f_max else (-f_max if fyf < -f_max else fyf)
-            fyr = r_max if fyr > r_max else (-r_max if fyr < -r_max else fyr)
-            return fyf, fyr, f_max, r_max
-
-        return saturated
-
-    bf, cf, df, ef = p.pacejka_front
-    br, cr, dr, er = p.pacejka_rear
-    peak_f = mu * df
-    peak_r = mu * dr
-    atan, sin = math.atan, math.sin
-
-    def pacejka(alpha_f: float, alpha_r: float, fzf: float, fzr: float, a: float):
-        ag = a / g
-        scale_f = sqrt(max(1.0 - (ag / peak_f) ** 2, 0.0))
-        scale_r = sqrt(max(1.0 - (ag / peak_r) ** 2, 0.0))
-        xf = bf * alpha_f
-        xr = br * alpha_r
-        fyf = peak_f * fzf * scale_f * sin(cf * atan(xf - ef * (xf - atan(xf))))
-        fyr = peak_r * fzr * scale_r * sin(cr * atan(xr - er * (xr - atan(xr))))
-        return fyf, fyr, peak_f * fzf * scale_f, peak_r * fzr * scale_r
-
-    return pacejka
-
-
 class SingleTrackModel:
     """The dynamic single-track model with its input limits (see the module docstring).
 
@@ -235,18 +150,17 @@ class SingleTrackModel:
         self.params = params
         self.kinematic_below_mps = float(kinematic_below_mps)
         self.kinematic_blend_mps = float(kinematic_blend_mps)
-        self.tyre_law = make_tyre_law(params)
+        self._dynamic = make_dynamic_derivatives(params, FLOAT_OPS)
+        self._dynamic_raw = make_dynamic_derivatives(params, FLOAT_OPS, raw=True)
         self.rhs: Callable[[StateTuple, float, float], StateTuple] = self._make_rhs()
         self._stiff = self._stiffness_constants()
 
     # ------------------------------------------------------------------ the equations
     def _make_rhs(self) -> Callable[[StateTuple, float, float], StateTuple]:
         p = self.params
-        m, iz, h = p.mass_kg, p.yaw_inertia_kgm2, p.cog_height_m
-        lf, lr = p.lf_m, p.lr_m
-        wb = lf + lr
-        g = GRAVITY_MPS2
-        lr_over_l = lr / wb
+        m, iz = p.mass_kg, p.yaw_inertia_kgm2
+        wb = p.lf_m + p.lr_m
+        lr_over_l = p.lr_m / wb
         tau_inv = 1.0 / KINEMATIC_RELAX_S
         v_kin, blend = self.kinematic_below_mps, self.kinematic_blend_mps
         s_min, s_max = p.steering_min_rad, p.steering_max_rad
@@ -256,13 +170,13 @@ class SingleTrackModel:
         a_fric = friction_accel_limit(p)
         a_hi_const = min(a_max, a_fric)
         a_lo = -min(a_max, a_fric)
-        law = self.tyre_law
         gym_exact = p.tyre_model == "linear"
+        dynamic = self._dynamic_raw
         cos, sin, tan, sqrt = math.cos, math.sin, math.tan, math.sqrt
 
         def rhs(s: StateTuple, sv: float, a: float) -> StateTuple:
             _x, _y, delta, v, psi, r, beta = s  # StateIndex order (checked in state.py)
-            # input limits (inlined steering_rate_constraint / acceleration_constraint)
+            # input limits: steering rate and end stops, acceleration (gym + friction)
             if (delta <= s_min and sv <= 0.0) or (delta >= s_max and sv >= 0.0):
                 sv = 0.0
             elif sv < sv_min:
@@ -293,7 +207,7 @@ class SingleTrackModel:
                 w = u * u * (3.0 - 2.0 * u)
             dr = 0.0
             dbeta = 0.0
-            dv = a
+            dv = 0.0
             if w < 1.0:
                 tan_d = tan(delta)
                 sec2 = 1.0 + tan_d * tan_d
@@ -304,35 +218,21 @@ class SingleTrackModel:
                 dbeta_k = lr_over_l * sec2 * sv * cb * cb
                 r_k = v * cb * tan_d / wb
                 dr_k = (a * cb * tan_d - v * sb * dbeta_k * tan_d + v * cb * sec2 * sv) / wb
-                dr = (1.0 - w) * (dr_k + (r_k - r) * tau_inv)
+                dr_kin = dr_k + (r_k - r) * tau_inv
+                dr = (1.0 - w) * dr_kin
                 dbeta = (1.0 - w) * (dbeta_k + (beta_k - beta) * tau_inv)
+                dv_kin = a
+                if not gym_exact:
+                    # rolling without slip is workless: yaw energy comes out of the speed
+                    p_yaw = iz * r * dr_kin
+                    if p_yaw > 0.0 and v != 0.0:
+                        dv_kin = a - p_yaw / (m * v)
+                dv = (1.0 - w) * dv_kin
             if w > 0.0:
-                fzf = m * (g * lr - a * h) / wb
-                fzr = m * (g * lf + a * h) / wb
-                if fzf < 0.0:
-                    fzf = 0.0
-                if fzr < 0.0:
-                    fzr = 0.0
-                inv = 1.0 / speed
-                if v > 0.0:
-                    alpha_f = delta - beta - lf * r * inv
-                    alpha_r = -beta + lr * r * inv
-                else:
-                    alpha_f = beta - delta - lf * r * inv
-                    alpha_r = beta + lr * r * inv
-                fyf, fyr, _fm, _rm = law(alpha_f, alpha_r, fzf, fzr, a)
-                if gym_exact:
-                    dr += w * (lf * fyf - lr * fyr) / iz
-                    dbeta += w * ((fyf + fyr) / (m * v) - r)
-                else:
-                    # front force in the wheel frame, projected on the body axes
-                    cd, sd = cos(delta), sin(delta)
-                    ax = a - fyf * sd / m
-                    ay = (fyf * cd + fyr) / m
-                    cb, sb = cos(beta), sin(beta)
-                    dr += w * (lf * fyf * cd - lr * fyr) / iz
-                    dbeta += w * ((ay * cb - ax * sb) / v - r)
-                    dv = (1.0 - w) * a + w * (ax * cb + ay * sb)
+                d_v, d_beta, d_r, _front, _rear = dynamic(v, beta, r, delta, a, a * v < 0.0)
+                dr += w * d_r
+                dbeta += w * d_beta
+                dv += w * d_v
             return (dx, dy, sv, dv, r, dr, dbeta)  # d/dt of X, Y, DELTA, V, PSI, PSI_DOT, BETA
 
         return rhs
@@ -346,25 +246,21 @@ class SingleTrackModel:
     def tyre_state(self, state: StateTuple, accel: float) -> TyreState:
         """Axle loads, slip angles and lateral forces at `state` with acceleration `accel`.
 
-        Diagnostic (telemetry, tests); uses the same tyre law as ``rhs``. `accel` is taken
-        as given (no limits); slip angles are 0 below ``kinematic_below_mps``.
+        Diagnostic (telemetry, tests); the same tyre laws as ``rhs``. `accel` is taken as
+        given (no limits). For ``linear`` tyres the gym's small-angle slips and no limit
+        (inf); slip angles are 0 below ``kinematic_below_mps``.
         """
-        p = self.params
-        lf, lr, wb, m = p.lf_m, p.lr_m, p.wheelbase_m, p.mass_kg
         delta = state[StateIndex.DELTA]
         v = state[StateIndex.V]
         r = state[StateIndex.PSI_DOT]
         beta = state[StateIndex.BETA]
-        fzf = max(m * (GRAVITY_MPS2 * lr - accel * p.cog_height_m) / wb, 0.0)
-        fzr = max(m * (GRAVITY_MPS2 * lf + accel * p.cog_height_m) / wb, 0.0)
-        if abs(v) > self.kinematic_below_mps:
-            sg = 1.0 if v > 0.0 else -1.0
-            alpha_f = sg * (delta - beta) - lf * r / abs(v)
-            alpha_r = -sg * beta + lr * r / abs(v)
-        else:
-            alpha_f = alpha_r = 0.0
-        fyf, fyr, f_max, r_max = self.tyre_law(alpha_f, alpha_r, fzf, fzr, accel)
-        return TyreState(fzf, fzr, alpha_f, alpha_r, fyf, fyr, f_max, r_max)
+        d = self._dynamic(v if v != 0.0 else 1e-9, beta, r, delta, accel, accel * v < 0.0)
+        f, b = d.front, d.rear
+        if abs(v) <= self.kinematic_below_mps:
+            return TyreState(f.fz_n, b.fz_n, 0.0, 0.0, 0.0, 0.0, f.fy_max_n, b.fy_max_n)
+        return TyreState(
+            f.fz_n, b.fz_n, f.alpha_rad, b.alpha_rad, f.fy_n, b.fy_n, f.fy_max_n, b.fy_max_n
+        )
 
     def kinematic_slip_and_yaw_rate(self, delta: float, v: float) -> tuple[float, float]:
         """(beta_k [rad], psi_dot_k [rad/s]) of the kinematic single-track at the CoG."""

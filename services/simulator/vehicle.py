@@ -35,6 +35,7 @@ _BETA = int(StateIndex.BETA)
 _PSI = int(StateIndex.PSI)
 _V = int(StateIndex.V)
 _DELTA = int(StateIndex.DELTA)
+_HALF_PI = 0.5 * math.pi
 
 
 @dataclass(frozen=True, slots=True)
@@ -261,12 +262,20 @@ class Simulator:
         v_min: float,
         v_max: float,
     ) -> StateTuple:
-        """Clamp steering and speed to their ranges (RK4 stages may overshoot an end stop)."""
+        """Clamp steering and speed to their ranges (RK4 stages may overshoot an end stop)
+        and keep the slip angle canonical: ``|beta| <= pi/2``, a car sliding backwards has
+        ``v < 0`` (``(v, beta)`` and ``(-v, beta -+ pi)`` are the same velocity)."""
         x, y, delta, v, psi, r, beta = s_new  # StateIndex order (checked in state.py)
         if not (
             math.isfinite(x + y + delta + v + psi + r + beta)
         ):  # inputs are sanitised, so this is a bug: refuse to carry NaN on
             raise FloatingPointError(f"non-finite state after a step from {s_old}: {s_new}")
+        if beta > _HALF_PI or beta < -_HALF_PI:
+            beta = math.remainder(beta, math.tau)  # into [-pi, pi]
+            if beta > _HALF_PI:
+                beta, v = beta - math.pi, -v
+            elif beta < -_HALF_PI:
+                beta, v = beta + math.pi, -v
         if delta < s_min:
             delta = s_min
         elif delta > s_max:

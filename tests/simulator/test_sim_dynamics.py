@@ -14,6 +14,7 @@ from services.simulator.state import Command, Pose2D, StateIndex
 from services.simulator.vehicle import Simulator
 from shared.config.simulator import SimulatorSettings
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams, vehicle_preset
+from shared.vehicle import FLOAT_OPS, make_axle_force_law
 
 S = StateIndex
 P = F1TENTH_GYM
@@ -165,23 +166,36 @@ def test_ramp_steer_saturates_lateral_acceleration() -> None:
 
 def test_pacejka_peak_force_is_mu_d_fz() -> None:
     p = vehicle_preset("real_car_identified")
-    model = SingleTrackModel(p)
+    front = make_axle_force_law(p, "front", FLOAT_OPS)
+    rear = make_axle_force_law(p, "rear", FLOAT_OPS)
     alphas = np.linspace(-0.6, 0.6, 2401)
     fzf, fzr = 17.0, 19.0
-    forces = np.array([model.tyre_law(a, a, fzf, fzr, 0.0)[:2] for a in alphas])
+    # a patch rolling at u = 1 m/s with lateral velocity w = -tan(alpha): slip angle alpha
+    forces = np.array(
+        [
+            (
+                front(1.0, -math.tan(a), fzf, 0.0, False)[1],
+                rear(1.0, -math.tan(a), fzr, 0.0, False)[1],
+            )
+            for a in alphas
+        ]
+    )
     assert forces[:, 0].max() == pytest.approx(p.mu * p.pacejka_front[2] * fzf, rel=1e-3)
     assert forces[:, 1].max() == pytest.approx(p.mu * p.pacejka_rear[2] * fzr, rel=1e-3)
     # small-slip slope is B C D per unit load
-    slope = model.tyre_law(1e-6, 1e-6, 1.0, 1.0, 0.0)[0] / 1e-6
+    slope = front(1.0, -1e-6, 1.0, 0.0, False)[1] / 1e-6
     assert slope == pytest.approx(np.prod(p.pacejka_front[:3]), rel=1e-3)
 
 
 def test_friction_circle_shrinks_lateral_grip_under_acceleration() -> None:
-    model = SingleTrackModel(P)
-    _, _, fmax0, _ = model.tyre_law(1.0, 1.0, 10.0, 10.0, 0.0)
-    _, _, fmax5, _ = model.tyre_law(1.0, 1.0, 10.0, 10.0, 5.0)
-    assert fmax0 == pytest.approx(P.mu * 10.0)
+    law = make_axle_force_law(P, "front", FLOAT_OPS)
+    _, fy0, fmax0, _ = law(1.0, -1.0, 10.0, 0.0, False)
+    fx5, fy5, fmax5, _ = law(1.0, -1.0, 10.0, 10.0 * 5.0 / GRAVITY_MPS2, False)
+    assert fmax0 == pytest.approx(P.mu * 10.0) and fy0 == pytest.approx(fmax0)
+    assert fx5 == pytest.approx(10.0 * 5.0 / GRAVITY_MPS2)
     assert fmax5 == pytest.approx(10.0 * math.sqrt(P.mu**2 - (5.0 / GRAVITY_MPS2) ** 2))
+    assert fy5 == pytest.approx(fmax5)
+    model = SingleTrackModel(P)
     ts = model.tyre_state((0.0, 0.0, 0.3, 5.0, 0.0, 0.0, 0.0), 0.0)
     assert ts.saturated_front and not ts.saturated_rear
 
