@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from services.bench.results import LapRecord, MethodRun, Trace
-from services.planner.planner import SOLVED, Planner
+from services.planner.planner import RECOVERING, SOLVED, Planner
 from services.planner.raceline import RacelinePlanner
 from services.simulator import Command, LapTimer, Simulator
 from services.simulator.laps import centreline_pose
@@ -28,7 +28,7 @@ from shared.track import Track
 #: The car gives up a method after this long without progress along the track [s].
 STALL_TIMEOUT_S = 10.0
 #: ... or this far from the centreline [m] (it is lost, not just off track).
-LOST_E_CON_M = 3.0
+LOST_E_CON_M = 5.0
 
 
 @dataclass(frozen=True)
@@ -76,6 +76,7 @@ def run_method(
     laps: list[LapRecord] = []
     solve_ms: list[float] = []
     failures = 0
+    off_all = off_out = 0
     cmd = Command(0.0, 0.0)
     st = sim.state
     timer.update(sim.t_s, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
@@ -88,7 +89,7 @@ def run_method(
         px, py, pyaw = rear_axle(st.x_m, st.y_m, st.yaw_rad, lr)
         res = planner.step(px, py, pyaw)
         solve_ms.append(res.solve_time_s * 1e3)
-        failures += res.status != SOLVED
+        failures += res.status not in (SOLVED, RECOVERING)
         trace.t_s.append(sim.t_s)
         trace.s_m.append(timer.s_m)
         trace.x_m.append(st.x_m)
@@ -110,6 +111,9 @@ def run_method(
             out = sim.step(c, dt)
             s = out.state
             for ev in timer.update(out.t_s, s.x_m, s.y_m, s.yaw_rad, s.v_mps):
+                if ev.kind == "off_track":
+                    off_all += 1
+                    off_out += not laps and not timer.timing
                 if ev.kind == "lap" and ev.lap_time_s is not None:
                     laps.append(
                         LapRecord(
@@ -132,5 +136,9 @@ def run_method(
             abort_reason = f"time limit {t_limit:.0f} s"
         if abort_reason:
             break
-    extra = {"aborted": abort_reason} if abort_reason else {}
-    return MethodRun(name, laps, trace, solve_ms, failures, opts.laps, extra)
+    extra: dict = {"recoveries": planner.recovery.episodes}
+    if abort_reason:
+        extra["aborted"] = abort_reason
+    return MethodRun(
+        name, laps, trace, solve_ms, failures, opts.laps, extra, off_all, off_out
+    )

@@ -85,6 +85,11 @@ class MethodRun:
     solver_failures: int
     requested_laps: int
     extra: dict[str, Any] = field(default_factory=dict)
+    #: every time the footprint left the track in the whole run: the out lap, the timed
+    #: laps and a lap cut short (a method lost in its out lap has no timed lap to count it)
+    run_off_track_events: int = 0
+    #: of those, before the first timed lap started
+    out_lap_off_track_events: int = 0
 
     @property
     def completed_laps(self) -> int:
@@ -122,6 +127,8 @@ def method_json(run: MethodRun) -> dict[str, Any]:
         "completed_laps": run.completed_laps,
         "requested_laps": run.requested_laps,
         "off_track_events": sum(lap.off_track_events for lap in run.laps),
+        "off_track_events_all": run.run_off_track_events,
+        "out_lap_off_track_events": run.out_lap_off_track_events,
         **run.extra,
     }
 

@@ -47,14 +47,15 @@ def format_table(doc: dict[str, Any]) -> str:
             lines.append(row)
     lines.append("")
     row_laps = f"{'completed laps':>24}"
-    row_off = f"{'off-track events':>24}"
+    row_off = f"{'off-track (all laps)':>24}"
     row_e = f"{'max |e_con| [m]':>24}"
     row_t = f"{'solve p95/p99 [ms]':>24}"
     for n in names:
         m = methods[n]
         laps = f"{m['completed_laps']}/{m.get('requested_laps', m['completed_laps'])}"
         row_laps += f"{laps:>{width}}{'':>10}"
-        row_off += f"{sum(lap['off_track_events'] for lap in m['laps']):>{width}}{'':>10}"
+        off = m.get("off_track_events_all", sum(lap["off_track_events"] for lap in m["laps"]))
+        row_off += f"{off:>{width}}{'':>10}"
         e = max((lap["max_abs_e_con_m"] for lap in m["laps"]), default=None)
         row_e += f"{_fmt(e):>{width}}{'':>10}"
         st = m["solve_time_ms"]

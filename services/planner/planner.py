@@ -25,6 +25,7 @@ import numpy as np
 
 from services.planner.model import NU, S, U
 from services.planner.problem import UA, XA, OcpProblem, build_problem
+from services.planner.recovery import Recovery, RecoveryCommand
 from services.planner.solver import SolverHandle, make_solver
 from shared.config.planner import CurvatureSettings, MethodWeights, PlannerSettings
 from shared.curvature import CurvatureProfile, track_profile
@@ -32,6 +33,10 @@ from shared.track import Track
 
 #: Status of a result: a fresh solution, the shifted previous plan, or a braking command.
 SOLVED, FALLBACK, BRAKING = "solved", "fallback", "braking"
+#: The car is lost (spun or far off the track): the recovery rule drives, not the method.
+RECOVERING = "recovering"
+#: A solved command slower than this [m/s] counts as holding the car still (recovery).
+STILL_SPEED_MPS = 0.1
 #: Half-width of the arc-length window searched around the previous projection when the
 #: nearby search (``Track.project_near``, +-1 m) finds its minimum at its edge [m]
 #: (0.5 s at 10 m/s).
@@ -154,6 +159,9 @@ class Planner:
         self._w_first = pr.state_index(0)
         #: (w_right, w_left) [m] of the narrowest section (the off-track check's shortcut)
         self._narrowest = (float(np.min(track.w_right_m)), float(np.min(track.w_left_m)))
+        self.recovery = Recovery(
+            track, settings.recovery, settings.wheelbase_m, min(-b.delta_rad[0], b.delta_rad[1])
+        )
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -164,6 +172,8 @@ class Planner:
         self._u_applied = np.zeros(NU)
         self._failures = 0
         self._prepared: _Prepared | None = None
+        self._still_ticks = 0  #: solved ticks in a row that commanded almost no speed
+        self.recovery.reset()
 
     @property
     def horizon(self) -> int:
@@ -222,6 +232,17 @@ class Planner:
         x0 = np.empty(len(XA))
         x0[XA.X], x0[XA.Y], x0[XA.PHI], x0[XA.PROGRESS] = x_m, y_m, yaw_rad, s0
         x0[XA.V_L_PREV : XA.V_P_PREV + 1] = self._u_applied
+        was_recovering = self.recovery.active
+        stalled = self._still_ticks * self.settings.dt_s
+        rec = self.recovery.update(x_m, y_m, yaw_rad, s0, e0, stalled)
+        if rec is not None:
+            self._still_ticks = 0
+            s0 = x0[XA.PROGRESS] = self._s_prev = self.recovery.s_m
+            return self._recovering(x0, s0, e0, rec, on_command)
+        if was_recovering:  # resume where the rule brought the car back
+            s0, e0 = (float(v) for v in self.track.project(
+                np.array([x_m, y_m]), s_hint=self.recovery.s_m, window_m=1.0))
+            x0[XA.PROGRESS] = self._s_prev = s0
 
         self.prepare()
         prep, self._prepared = self._prepared, None
@@ -253,6 +274,7 @@ class Planner:
         u0 = np.clip(w[pr.input_index(0)][:NU], self._u_lo, self._u_hi)
         self._u_applied = u0
         speed, limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
+        self._still_ticks = self._still_ticks + 1 if abs(speed) < STILL_SPEED_MPS else 0
         command = DriveCommand(speed, float(u0[U.DELTA]))
         if on_command is not None:
             on_command(command)
@@ -274,6 +296,41 @@ class Planner:
         )
 
     # ------------------------------------------------------------------ helpers
+    def _recovering(
+        self,
+        x0: np.ndarray,
+        s0: float,
+        e0: float,
+        rec: RecoveryCommand,
+        on_command: Callable[[DriveCommand], None] | None,
+    ) -> SolveResult:
+        """The recovery rule's command; the method starts cold once the car is back."""
+        self._w_prev = None
+        self._prepared = None
+        self._failures = 0
+        self._u_applied = np.array([rec.speed_mps, rec.steering_rad, rec.speed_mps])
+        command = DriveCommand(rec.speed_mps, rec.steering_rad)
+        if on_command is not None:
+            on_command(command)
+        N = self.horizon
+        us = np.zeros((N, NU))
+        us[0] = self._u_applied
+        return SolveResult(
+            command=command,
+            states=np.tile(x0[: len(S)], (N + 1, 1)),
+            inputs=us,
+            status=RECOVERING,
+            solver_status=f"recovery: {rec.reason}",
+            iterations=0,
+            solve_time_s=0.0,
+            beta=np.full(N, float(self.profile.beta_at(s0))),
+            s_m=s0,
+            e_con_m=e0,
+            consecutive_failures=0,
+            method=self.method,
+            speed_limited=True,
+        )
+
     def _safe_speed(self, speed: float, s0: float, e0: float) -> tuple[float, bool]:
         """Cap |speed| at off_track_speed_mps while the car is outside the track boundaries.
 
@@ -372,7 +429,8 @@ class Planner:
         if not np.all(np.isfinite(u0)):
             u0 = np.zeros(NU)
         self._u_applied = u0
-        command = DriveCommand(float(u0[U.V_L]), float(u0[U.DELTA]))
+        speed, _limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
+        command = DriveCommand(speed, float(u0[U.DELTA]))
         if on_command is not None:
             on_command(command)
         return SolveResult(

@@ -34,7 +34,8 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from services.planner.planner import BRAKING, SOLVED, DriveCommand, SolveResult
+from services.planner.planner import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
+from services.planner.recovery import Recovery
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
 from shared.curvature import track_profile
 from shared.track import Track, TrackError
@@ -243,6 +244,9 @@ class RacelinePlanner:
         self._timer = timer
         b = settings.bounds
         self._delta_lim = (b.delta_rad[0], b.delta_rad[1])
+        self.recovery = Recovery(
+            track, settings.recovery, settings.wheelbase_m, min(-b.delta_rad[0], b.delta_rad[1])
+        )
         self.reset()
 
     @property
@@ -254,6 +258,7 @@ class RacelinePlanner:
         """Forget where the car was (next step searches the whole line)."""
         self._s_line: float | None = None
         self._s_track: float | None = None
+        self.recovery.reset()
 
     def prepare(self) -> None:
         """Nothing to do ahead of time (the ``Planner`` interface)."""
@@ -278,6 +283,19 @@ class RacelinePlanner:
         s_l = self._project(line, x_m, y_m, self._s_line)
         s_t, e_t = self._project_track(x_m, y_m)
         self._s_line, self._s_track = s_l, s_t
+        was_recovering = self.recovery.active
+        rec = self.recovery.update(x_m, y_m, yaw_rad, s_t, e_t)
+        if rec is not None or was_recovering:
+            # follow the rule's anchored progress, on the track and (scaled) on the line
+            s_t = self._s_track = self.recovery.s_m
+            hint = s_t * line.length_m / self.track.length_m
+            s_l = self._s_line = float(line.project(np.array([x_m, y_m]), hint, 2.0)[0])
+        if rec is not None:
+            cmd = DriveCommand(rec.speed_mps, rec.steering_rad)
+            if on_command is not None:
+                on_command(cmd)
+            return self._result(cmd, x_m, y_m, yaw_rad, s_l, s_t, e_t, f"recovery: {rec.reason}",
+                                t0, status=RECOVERING)
         v_ref = self.raceline.speed_at(s_l)
         l_d = min(max(o.lookahead_base_m + o.lookahead_gain_s * v_ref, o.lookahead_min_m),
                   o.lookahead_max_m)

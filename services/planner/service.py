@@ -25,7 +25,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from services.planner.methods import make_planner
-from services.planner.planner import BRAKING, SOLVED, DriveCommand, Planner, SolveResult
+from services.planner.planner import (
+    BRAKING,
+    RECOVERING,
+    SOLVED,
+    DriveCommand,
+    Planner,
+    SolveResult,
+)
 from services.planner.raceline import RacelinePlanner
 from shared.bus import Bus, ChannelSubscription, DropReporter
 from shared.config import RacestackConfig
@@ -72,6 +79,7 @@ class PlannerShell:
         self.last_solve = 0.0
         self.last_state = time.monotonic()
         self.braking = True
+        self.recovering = False
         self.steering = 0.0
         self.cmd_stamp = 0.0  #: wall-clock stamp of the last command published [s]
         self._lock = threading.Lock()  # the state worker and the main thread's watchdog
@@ -115,6 +123,14 @@ class PlannerShell:
         if self.braking:
             self.say("info", "state fresh: racing")
             self.braking = False
+        if res.status == RECOVERING:
+            if not self.recovering:
+                self.say("warning", f"car lost, {res.solver_status}")
+            self.recovering = True
+            return
+        if self.recovering:
+            self.say("info", "car back on the track: racing")
+            self.recovering = False
         if res.status != SOLVED:
             level = "error" if res.status == BRAKING else "warning"
             self.say(level, f"solver {res.status}: {res.solver_status}")

@@ -108,6 +108,29 @@ class RacelineSettings(Section):
     )
 
 
+class RecoverySettings(Section):
+    """Back to the track after a spin or slide (``services.planner.recovery``; a safety
+    rule outside the optimisation, for every method alike)."""
+
+    enabled: bool = Field(True, description="hand over to the rule while the car is lost")
+    enter_outside_m: float = Field(
+        0.3, ge=0.0, le=10.0, description="enter when the rear axle is this far outside [m]"
+    )
+    enter_heading_rad: float = Field(
+        1.2, gt=0.0, le=3.1416, description="... or the heading this far off the track's [rad]"
+    )
+    stall_s: float = Field(
+        1.0, gt=0.0, le=60.0, description="... or the method held the car still this long [s]"
+    )
+    exit_inside_m: float = Field(
+        0.1, ge=0.0, le=2.0, description="leave once this far inside the boundaries [m]"
+    )
+    exit_heading_rad: float = Field(
+        0.5, gt=0.0, le=3.1416, description="... with the heading within this [rad]"
+    )
+    speed_mps: float = Field(1.0, gt=0.0, le=5.0, description="speed while recovering [m/s]")
+
+
 class PlannerSettings(Section):
     """The CiMPCC / MPCC planner: one problem, two weight sets."""
 
@@ -147,6 +170,7 @@ class PlannerSettings(Section):
         le=20.0,
         description="safety: while the car is outside the track, |speed command| is capped here",
     )
+    recovery: RecoverySettings = RecoverySettings()
     stale_state_s: float = Field(
         0.1, gt=0.0, le=5.0, description="planner service: state older than this -> brake"
     )

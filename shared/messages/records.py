@@ -88,7 +88,7 @@ class InputCol(IntEnum):
     V_P = 2
 
 
-PLAN_STATUSES = ("solved", "fallback", "braking")
+PLAN_STATUSES = ("solved", "fallback", "braking", "recovering")
 PLAN_METHODS = ("cimpcc", "mpcc", "raceline")
 LAP_KINDS = ("start", "lap", "off_track", "back_on_track")
 LOG_LEVELS = ("debug", "info", "warning", "error")
@@ -262,7 +262,8 @@ class Plan(Message):
         inputs: float64 (N, 3) planned inputs [v_l m/s, delta rad, v_p m/s] (``InputCol``).
         beta: float64 (N,) curvature weight beta in [0, 1] of each stage (a single beta is
             sent repeated N times).
-        status: "solved" | "fallback" (shifted previous plan) | "braking".
+        status: "solved" | "fallback" (shifted previous plan) | "braking" | "recovering"
+            (the car is lost: the recovery rule drives, see services/planner/recovery.py).
         solver_status: the solver back-end's own status text (<= 200 chars).
         iterations: solver iterations; solve_time_ms: wall time of the solve [ms].
         method: "cimpcc" | "mpcc" | "raceline".

@@ -1,0 +1,153 @@
+"""Getting back on the track after a spin or a slide: a safety rule outside the optimisation.
+
+A kinematic MPC has no notion of a car that has spun round or slid a metre off the track:
+from there it asks for reverse at full speed or its solver fails, and the car stops where
+it is. Every method (cimpcc, mpcc, raceline) therefore hands over to this rule while the
+car is lost, and takes over again, from a cold start, once the car is back:
+
+- enter when the rear axle is more than ``enter_outside_m`` outside the boundaries, when
+  the car's heading differs from the track's by more than ``enter_heading_rad``, or when
+  the method has held the car still for ``stall_s`` (a car across the track is a local
+  minimum of a contouring cost);
+- drive forwards at ``speed_mps`` along a guidance field: the wanted heading is the
+  track's turned towards the centreline by the offset, ``psi_w = psi_track(s) +
+  atan(k_e e_con)`` (``GUIDANCE_GAIN_PER_M``; ``e_con > 0`` right of the centreline), and the
+  steering ``delta = clip(k_psi wrap(psi_w - psi))`` (``STEER_GAIN``). A field has no target
+  point the car could circle round for ever: from any pose it turns (a car facing backwards
+  makes a U-turn at full lock), heads for the centreline and lines up with it;
+- leave when the car is inside the boundaries by ``exit_inside_m`` and its heading is
+  within ``exit_heading_rad`` of the track's.
+
+While it acts, the rule keeps its own projection, anchored where the car left: each tick it
+searches only a window of twice the distance the car moved (at least ``ANCHOR_MIN_M``, at
+most ``ANCHOR_WINDOW_M``) around its last arc length, so the anchor follows the car along
+its stretch of track and cannot jump to another. Where the track folds back, a car that
+slid across the infield is brought back to where it left, as a marshal would have it,
+instead of being raced on from another stretch. The method then resumes from that arc
+length (``s_m``).
+
+With the default car on its default tracks the rule never acts (no method leaves the
+track), so it changes none of the paper's figures; it lets a car whose grip the planner
+overestimates (the identified real car) finish its laps, each excursion counted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from shared.config.planner import RecoverySettings
+from shared.track import Track
+
+#: k_e [rad/m] of the guidance field: how steeply the wanted heading points at the line.
+GUIDANCE_GAIN_PER_M = 2.0
+#: k_psi [rad of steering per rad of heading error].
+STEER_GAIN = 1.0
+#: Largest and smallest half-width [m] of the anchored projection's search window.
+ANCHOR_WINDOW_M = 1.0
+ANCHOR_MIN_M = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class RecoveryCommand:
+    """What the rule commands: speed [m/s], steering [rad], and why it is active."""
+
+    speed_mps: float
+    steering_rad: float
+    reason: str
+
+
+class Recovery:
+    """The enter / drive / leave rule (see the module docstring); pure, no I/O.
+
+    Args:
+        track: the track.
+        settings: thresholds, speed and look-ahead.
+        wheelbase_m: the planner's wheelbase L [m].
+        steering_limit_rad: the largest steering command [rad] (> 0).
+    """
+
+    def __init__(
+        self,
+        track: Track,
+        settings: RecoverySettings,
+        wheelbase_m: float,
+        steering_limit_rad: float,
+    ) -> None:
+        self.track = track
+        self.settings = settings
+        self.wheelbase_m = float(wheelbase_m)
+        self.steering_limit_rad = float(steering_limit_rad)
+        self.active = False
+        #: times the rule took over since the last reset
+        self.episodes = 0
+        #: the anchored arc length [m] while recovering (and where it left off)
+        self.s_m = 0.0
+        self._xy = (0.0, 0.0)
+
+    def reset(self) -> None:
+        """Back to racing (e.g. a new run)."""
+        self.active = False
+        self.episodes = 0
+
+    def update(
+        self,
+        x_m: float,
+        y_m: float,
+        yaw_rad: float,
+        s_m: float,
+        e_con_m: float,
+        stalled_s: float = 0.0,
+    ) -> RecoveryCommand | None:
+        """The command while the car is lost, or None while the method should drive.
+
+        Args:
+            x_m, y_m, yaw_rad: the car's rear-axle pose [m, m, rad].
+            s_m, e_con_m: its projection on the centreline: progress [m] and contour error
+                [m] (positive right of the centreline).
+            stalled_s: how long the method has commanded (almost) no speed [s].
+        """
+        cfg = self.settings
+        if not cfg.enabled:
+            return None
+        if self.active:  # anchored: continue from where the car left
+            moved = math.hypot(x_m - self._xy[0], y_m - self._xy[1])
+            window = min(max(2.0 * moved, ANCHOR_MIN_M), ANCHOR_WINDOW_M)
+            s, e = self.track.project(np.array([x_m, y_m]), s_hint=self.s_m, window_m=window)
+            s_m, e_con_m = float(s), float(e)
+        self.s_m = s_m
+        self._xy = (x_m, y_m)
+        w_r, w_l = (float(v) for v in self.track.interp_width(s_m))
+        outside = max(e_con_m - w_r, -e_con_m - w_l)  # > 0 outside the boundaries [m]
+        heading = float(self.track.heading_at(s_m))
+        heading_err = abs(math.remainder(yaw_rad - heading, math.tau))
+        if not self.active:
+            if outside > cfg.enter_outside_m:
+                self._enter()
+                reason = f"{outside:.2f} m outside the track"
+            elif heading_err > cfg.enter_heading_rad:
+                self._enter()
+                reason = f"heading {math.degrees(heading_err):.0f} deg off the track's"
+            elif stalled_s > cfg.stall_s:
+                self._enter()
+                reason = f"held still for {stalled_s:.1f} s"
+            else:
+                return None
+        elif outside < -cfg.exit_inside_m and heading_err < cfg.exit_heading_rad:
+            self.active = False
+            return None
+        else:
+            reason = "returning to the track"
+        # guidance field: head along the track, turned towards the centreline by the offset
+        wanted = heading + math.atan(GUIDANCE_GAIN_PER_M * e_con_m)  # e > 0: right of it
+        err = math.remainder(wanted - yaw_rad, math.tau)
+        lim = self.steering_limit_rad
+        steer = min(max(STEER_GAIN * err, -lim), lim)
+        return RecoveryCommand(cfg.speed_mps, steer, reason)
+
+    def _enter(self) -> None:
+        self.active = True
+        self.episodes += 1
+
