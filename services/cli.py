@@ -4,6 +4,7 @@ racestack up [--laps 3]          the stack racing the simulator, one process per
 racestack demo                   the main job (same as ``up``)
 racestack run SERVICE            one service alone (router, simulator, planner, ...)
 racestack bench ...              the paper's lap-time experiment in one process
+racestack mintime ...            the minimum-time lap of the simulator's car (the limit)
 racestack report RUN             the lap table and figures of a recorded run
 racestack laps                   the planner against its own kinematic model
 """
@@ -83,6 +84,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return bench_main(args=args)
 
 
+def _cmd_mintime(args: argparse.Namespace) -> int:
+    from services.planner.mintime_cli import main as mintime_main
+
+    return mintime_main(args=args)
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     from services.telemetry.report import main as report_main
 
@@ -129,6 +136,12 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="the paper's lap-time experiment (in process)")
     bench_parser(bench)
     bench.set_defaults(handler=_cmd_bench)
+
+    from services.planner.mintime_cli import build_parser as mintime_parser
+
+    mintime = sub.add_parser("mintime", help="minimum-time lap of the simulator's car (OCP)")
+    mintime_parser(mintime)
+    mintime.set_defaults(handler=_cmd_mintime)
 
     report = sub.add_parser("report", help="lap table and figures of a recorded run (.rrd)")
     report.add_argument("rest", nargs=argparse.REMAINDER, help="RUN.rrd or run folder, options")

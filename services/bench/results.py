@@ -8,7 +8,13 @@
                         "lap_time_s": {"max", "min", "mean"},
                         "mean_speed_mps": {"max", "min", "mean"},
                         "solve_time_ms": {"median", "p95", "p99", "max"},
-                        "solver_failures": int, "completed_laps": int}}}
+                        "solver_failures": int, "completed_laps": int,
+                        "ratio_to_min_time": float | None}},
+     "reference": {"min_time_lap_s", "v_max_mps", ...}}
+
+``reference`` (when the bench computed it) is the minimum-time lap of the simulator's car
+(``services.planner.mintime``); each method's ``ratio_to_min_time`` is its mean lap time
+over that lap (1.0 would be the physical limit; below 1 is a bug).
 """
 
 from __future__ import annotations
@@ -138,13 +144,26 @@ def results_document(
     track_length_m: float,
     runs: list[MethodRun],
     meta: dict[str, Any] | None = None,
+    reference: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The whole results.json document."""
+    """The whole results.json document.
+
+    Args:
+        reference: the minimum-time lap (``min_time_lap_s`` [s], ``v_max_mps`` [m/s], ...);
+            adds ``reference`` and each method's ``ratio_to_min_time`` = mean lap /
+            ``min_time_lap_s`` (None without laps).
+    """
     doc: dict[str, Any] = {
         "track": track_name,
         "track_length_m": track_length_m,
         "methods": {run.name: method_json(run) for run in runs},
     }
+    if reference is not None:
+        doc["reference"] = dict(reference)
+        limit = float(reference["min_time_lap_s"])
+        for entry in doc["methods"].values():
+            mean = entry["lap_time_s"]["mean"]
+            entry["ratio_to_min_time"] = None if mean is None else mean / limit
     if meta:
         doc["meta"] = meta
     return doc

@@ -12,6 +12,11 @@ Methods:
   with a speed profile, tracked by pure pursuit (``services/planner/raceline.py``).
 
 The MPC methods share one built (and compiled) problem: they differ only in parameters.
+
+Reference: unless ``--no-reference``, the bench first computes (or loads from the cache)
+the minimum-time lap of its simulated car on the track (``services.planner.mintime``, top
+speed the planners' ``[planner.cimpcc] v_up_mps[0]``) and reports every method's mean lap
+over it (``ratio_to_min_time`` in results.json, the last row of the table).
 """
 
 from __future__ import annotations
@@ -28,11 +33,13 @@ from services.bench.closed_loop import LoopOptions, run_method
 from services.bench.figures import write_figures
 from services.bench.results import MethodRun, results_document, write_results
 from services.bench.table import format_paper_table, format_table
+from services.planner.mintime import MinTimeError, MinTimeSettings
+from services.planner.mintime_store import min_time_lap
 from services.planner.planner import Planner
 from services.planner.raceline import RacelinePlanner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.planner import MethodWeights
-from shared.track import TrackError, load_track
+from shared.track import Track, TrackError, load_track
 
 METHODS = ("cimpcc", "mpcc", "mpcc-tuned", "raceline")
 #: Progress-speed references [m/s] tried by mpcc-tuned (v_l ref = 1.1 x v_p ref).
@@ -142,6 +149,30 @@ def sweep_mpcc(
     return best["v_p_ref_mps"], rows
 
 
+def min_time_reference(track: Track, cfg: RacestackConfig) -> dict | None:
+    """The ``reference`` of results.json: the minimum-time lap of the simulated car on
+    `track` at the planners' top speed (cached per track and car), or None (with a line
+    on stderr) when the track allows none."""
+    settings = MinTimeSettings(v_max_mps=cfg.planner.cimpcc.v_up_mps[0])
+    print("minimum-time reference lap (solved once per track and car, then cached) ...",
+          file=sys.stderr)
+    try:
+        lap = min_time_lap(track, cfg.simulator.vehicle, settings)
+    except MinTimeError as exc:
+        print(f"no minimum-time reference: {exc}", file=sys.stderr)
+        return None
+    return {
+        "min_time_lap_s": lap.lap_time_s,
+        "v_max_mps": lap.v_max_mps,
+        "tyre_model": lap.tyre_model,
+        "ds_m": lap.ds_m,
+        "margin_m": lap.margin_m,
+        "solver_status": lap.status,
+        "solve_time_s": lap.solve_time_s,
+        "cache_hit": lap.cache_hit,
+    }
+
+
 def run_bench(
     cfg: RacestackConfig,
     track_spec: str,
@@ -152,15 +183,22 @@ def run_bench(
     sweep_values: list[float],
     sweep_laps: int,
     figures: bool = True,
+    reference: bool = True,
 ) -> dict:
-    """Run every method and write results.json and the figures; returns the document."""
+    """Run every method and write results.json and the figures; returns the document.
+
+    With `reference`, the minimum-time lap comes first (``min_time_reference``)."""
     track = load_track(track_spec)
     t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    ref_doc = None
+    if reference:
+        ref_doc = min_time_reference(track, cfg)
+        timings["min-time reference"] = time.perf_counter() - t_start
     base = Planner(track, cfg.planner, cfg.curvature)
     # built first: a track that allows no raceline is an error before anything races
     baseline = RacelinePlanner(track, cfg.planner, cfg.curvature) if "raceline" in methods else None
     runs: list[MethodRun] = []
-    timings: dict[str, float] = {}
     for name in methods:
         t0 = time.perf_counter()
         method = "cimpcc" if name == "cimpcc" else "mpcc"
@@ -215,7 +253,7 @@ def run_bench(
         "wall_time_total_s": round(time.perf_counter() - t_start, 2),
         "track_source": track.source,
     }
-    doc = results_document(track.name, track.length_m, runs, meta)
+    doc = results_document(track.name, track.length_m, runs, meta, reference=ref_doc)
     write_results(out_dir / "results.json", doc)
     if figures:
         write_figures(out_dir, track, base.profile, runs)
@@ -246,6 +284,11 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     )
     ap.add_argument("--sweep-laps", type=int, default=3)
     ap.add_argument("--no-figures", action="store_true")
+    ap.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="skip the minimum-time reference lap (solved once per track and car, cached)",
+    )
     return ap
 
 
@@ -288,6 +331,7 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
             sweep,
             args.sweep_laps,
             figures=not args.no_figures,
+            reference=not args.no_reference,
         )
     except TrackError as exc:  # e.g. no raceline on this track (raised before any race)
         print(f"racestack bench: error: {exc}", file=sys.stderr)

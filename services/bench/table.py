@@ -26,13 +26,21 @@ def format_table(doc: dict[str, Any]) -> str:
     """Lap time and mean speed (max / min / mean) per method, with % against the best.
 
     The best method is the one with the lowest mean lap time (for lap time) and the highest
-    mean speed (for speed); each cell's percentage is against that best value.
+    mean speed (for speed); each cell's percentage is against that best value. With a
+    ``reference`` (the minimum-time lap) a last row gives each mean lap over that limit.
     """
     methods = doc["methods"]
     names = list(methods)
     width = max(12, *(len(n) + 2 for n in names))
     header = f"{'':>24}" + "".join(f"{n:>{width}}{'vs best':>10}" for n in names)
-    lines = [f"track {doc['track']} ({doc['track_length_m']:.2f} m)", header]
+    lines = [f"track {doc['track']} ({doc['track_length_m']:.2f} m)"]
+    ref = doc.get("reference")
+    if ref:
+        lines.append(
+            f"minimum-time lap of the simulated car (the limit): {ref['min_time_lap_s']:.3f} s "
+            f"at v_max {ref['v_max_mps']:g} m/s"
+        )
+    lines.append(header)
     for key, label, unit, better in (
         ("lap_time_s", "Lap time [s]", "", min),
         ("mean_speed_mps", "Mean speed [m/s]", "", max),
@@ -62,6 +70,12 @@ def format_table(doc: dict[str, Any]) -> str:
         t = "-" if st["p95"] is None else f"{st['p95']:.2f}/{st['p99']:.2f}"
         row_t += f"{t:>{width}}{'':>10}"
     lines += [row_laps, row_off, row_e, row_t]
+    if ref:
+        row_r = f"{'mean lap / min-time':>24}"
+        for n in names:
+            r = methods[n].get("ratio_to_min_time")
+            row_r += f"{'-' if r is None else f'{r:.3f}':>{width}}{'':>10}"
+        lines.append(row_r)
     for n in names:
         m = methods[n]
         if m["completed_laps"] < m.get("requested_laps", m["completed_laps"]):

@@ -46,9 +46,10 @@ class StepResult:
         t_s: simulation time at the end of the step [s].
         state: true state at ``t_s``.
         accel_long_mps2: body-frame longitudinal acceleration of the CoG, mean over the step
-            [m/s^2]: ``a cos(beta) - v sin(beta) (beta' + psi')``.
+            [m/s^2]: the change of the velocity vector over the step, in the body frame at
+            the step's mean yaw (to first order ``a cos(beta) - v sin(beta) (beta' + psi')``).
         accel_lat_mps2: body-frame lateral acceleration (left positive), mean over the step
-            [m/s^2]: ``a sin(beta) + v cos(beta) (beta' + psi')``.
+            [m/s^2] (to first order ``a sin(beta) + v cos(beta) (beta' + psi')``).
         speed_target_mps: speed target acting at the last sub-step (after delays) [m/s].
         steering_target_rad: steering target acting at the last sub-step [rad].
         command_timed_out: the speed target was 0 at the last sub-step because no fresh
@@ -237,16 +238,19 @@ class Simulator:
             t = t_i + h
         self._s = s
         self._t = t
-        # mean accelerations over the step from the state change
-        dv = (s[_V] - s0[_V]) / dt
-        dchi = ((s[_PSI] + s[_BETA]) - (s0[_PSI] + s0[_BETA])) / dt  # course rate
-        v, beta = s[_V], s[_BETA]
-        cb, sb = math.cos(beta), math.sin(beta)
+        # mean acceleration over the step from the change of the velocity vector (valid
+        # across the canonical flip (v, beta) -> (-v, beta -+ pi)), in the body frame at
+        # the step's mean yaw
+        c0, c1 = s0[_PSI] + s0[_BETA], s[_PSI] + s[_BETA]
+        ax_w = (s[_V] * math.cos(c1) - s0[_V] * math.cos(c0)) / dt
+        ay_w = (s[_V] * math.sin(c1) - s0[_V] * math.sin(c0)) / dt
+        yaw_mid = 0.5 * (s0[_PSI] + s[_PSI])
+        cy, sy = math.cos(yaw_mid), math.sin(yaw_mid)
         return StepResult(
             t_s=t,
             state=VehicleState(*s),
-            accel_long_mps2=dv * cb - v * sb * dchi,
-            accel_lat_mps2=dv * sb + v * cb * dchi,
+            accel_long_mps2=cy * ax_w + sy * ay_w,
+            accel_lat_mps2=-sy * ax_w + cy * ay_w,
             speed_target_mps=v_target,
             steering_target_rad=d_target,
             command_timed_out=timed_out,

@@ -2,16 +2,26 @@
 
 from shared.track.errors import TrackError
 from shared.track.geometry import Track
-from shared.track.io import BUILTIN_TRACKS, DEFAULT_TRACK, load_track
+from shared.track.io import (
+    BUILTIN_TRACKS,
+    DEFAULT_TRACK,
+    RacelineTable,
+    load_f1tenth_raceline,
+    load_track,
+    write_f1tenth_raceline,
+)
 from shared.track.occupancy import OccupancyGrid, load_ros_map, rasterize_track
 
 __all__ = [
     "BUILTIN_TRACKS",
     "DEFAULT_TRACK",
     "OccupancyGrid",
+    "RacelineTable",
     "Track",
     "TrackError",
+    "load_f1tenth_raceline",
     "load_ros_map",
     "load_track",
     "rasterize_track",
+    "write_f1tenth_raceline",
 ]

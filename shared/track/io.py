@@ -1,4 +1,5 @@
-"""Loading tracks from the usual F1TENTH formats (the only module here that reads files).
+"""Loading tracks from the usual F1TENTH formats (the only module here that reads files;
+it also writes the F1TENTH raceline CSV that it reads).
 
 Formats (see ``docs`` in the README):
 - F1TENTH centreline CSV: header ``# x_m, y_m, w_tr_right_m, w_tr_left_m``, comma separated,
@@ -8,17 +9,21 @@ Formats (see ``docs`` in the README):
   first. Widths are the distances from each centre point to its left / right points.
 - A folder holding either of the above (F1TENTH ``<T>/<T>_centerline.csv`` or a triple).
 - ``builtin:NAME`` or a bare built-in name for the tracks shipped in the package.
+- F1TENTH raceline CSV (``load_f1tenth_raceline`` / ``write_f1tenth_raceline``): two
+  comment lines, then ``# s_m; x_m; y_m; psi_rad; kappa_radpm; vx_mps; ax_mps2``, then
+  ``;`` separated rows.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from shared.track.errors import TrackError
-from shared.track.geometry import Track
+from shared.track.geometry import MIN_POINTS, Track
 
 #: Names of the built-in tracks shipped with the package; the first is the default.
 BUILTIN_TRACKS = ("paperlike", "gentle")
@@ -192,3 +197,73 @@ def load_track(spec: str | Path) -> Track:
     if path.suffix.lower() == ".csv":
         return load_f1tenth_centerline(path)
     raise TrackError(text, "unsupported track file (expected a .csv centreline or a folder)")
+
+
+#: Columns of the F1TENTH raceline CSV (``<T>_raceline.csv``), in order.
+RACELINE_COLUMNS = ("s_m", "x_m", "y_m", "psi_rad", "kappa_radpm", "vx_mps", "ax_mps2")
+
+
+@dataclass(frozen=True, eq=False)
+class RacelineTable:
+    """A racing line with its speed profile, as in the F1TENTH ``<T>_raceline.csv``.
+
+    Attributes (each an (n,) array, one row per point, the loop closed implicitly):
+        s_m: arc length along the line [m], increasing from its first point.
+        x_m, y_m: position [m]; psi_rad: heading of the line from the x axis [rad] in
+            [0, 2 pi); kappa_radpm: curvature [1/m] (left +); vx_mps: speed [m/s];
+        ax_mps2: longitudinal acceleration [m/s^2].
+        source: the file it came from (or where it is going).
+    """
+
+    s_m: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    psi_rad: np.ndarray
+    kappa_radpm: np.ndarray
+    vx_mps: np.ndarray
+    ax_mps2: np.ndarray
+    source: str = "<memory>"
+
+    def columns(self) -> np.ndarray:
+        """(n, 7) array in ``RACELINE_COLUMNS`` order."""
+        return np.column_stack([getattr(self, c) for c in RACELINE_COLUMNS])
+
+
+def load_f1tenth_raceline(path: str | Path) -> RacelineTable:
+    """Read an F1TENTH raceline CSV: comment lines (``#``), the last of which names the
+    columns ``s_m; x_m; y_m; psi_rad; kappa_radpm; vx_mps; ax_mps2``, then ``;`` separated
+    rows. Raises TrackError naming the file and the problem (missing header, a wrong column
+    count, a non-number, NaN, fewer than ``MIN_POINTS`` rows, s not increasing)."""
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TrackError(str(path), f"cannot read file ({exc})") from exc
+    header = [ln for ln in lines if ln.lstrip().startswith("#")]
+    names = [c.strip() for c in header[-1].lstrip("# \t").split(";")] if header else []
+    if tuple(names) != RACELINE_COLUMNS:
+        raise TrackError(str(path), f"expected a '# {'; '.join(RACELINE_COLUMNS)}' header line")
+    data = _read_numeric_rows(path, ";", len(RACELINE_COLUMNS))
+    if len(data) < MIN_POINTS:
+        raise TrackError(str(path), f"only {len(data)} rows; at least {MIN_POINTS} are needed")
+    if not np.all(np.isfinite(data)):
+        bad = int(np.flatnonzero(~np.isfinite(data).all(axis=1))[0])
+        raise TrackError(str(path), f"non-finite value (NaN or inf) in data row {bad + 1}")
+    if np.any(np.diff(data[:, 0]) <= 0.0):
+        raise TrackError(str(path), "s_m must increase from row to row")
+    return RacelineTable(*(data[:, i].copy() for i in range(len(RACELINE_COLUMNS))),
+                         source=str(path))
+
+
+def write_f1tenth_raceline(
+    path: str | Path, table: RacelineTable, comments: tuple[str, str] = ("", "")
+) -> None:
+    """Write `table` as an F1TENTH raceline CSV (two free comment lines, the column line,
+    then ``;`` separated rows, 7 decimals), atomically (a temporary file, then a rename)."""
+    path = Path(path)
+    lines = [f"# {comments[0]}".rstrip(), f"# {comments[1]}".rstrip(),
+             "# " + "; ".join(RACELINE_COLUMNS)]
+    lines += [";".join(f"{v:.7f}" for v in row) for row in table.columns()]
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    tmp.replace(path)
