@@ -41,7 +41,6 @@ the best case.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 import time
@@ -103,7 +102,7 @@ _LEVELS = {
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
 _VESC_FIELDS = tuple(
     f.name
-    for f in dataclasses.fields(VescState)
+    for f in VescState.fields_info()
     if f.name not in ("status", "stamp_s", "seq")
 )
 #: Keys whose silence is reported as stale input (once seen).

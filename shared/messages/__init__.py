@@ -1,17 +1,17 @@
 """The message contract of racestack: typed, validated records and their msgpack codec.
 
-Every message is a frozen dataclass with ``stamp_s`` (sender's clock [s]) and ``seq``
+Every message is a frozen ``msgspec.Struct`` with ``stamp_s`` (sender's clock [s]) and ``seq``
 (sequence number, stamped by the bus publisher), encoded as a msgpack map with a ``"type"``
 tag and a ``"v"`` schema version (see ``shared.messages.codec`` for the wire rules, and
-``docs/message-contract.md`` for the table of keys and fields). Decoding validates types,
-finiteness, ranges, array dtypes and shapes, and raises only ``MessageError``::
+``docs/message-contract.md`` for the table of keys and fields). Constructors and decoding
+validate types, finiteness, ranges, array dtypes and shapes, and raise only ``MessageError``::
 
     from shared.messages import DriveCmd, decode, decode_any
     data = DriveCmd(stamp_s=1.5, speed_mps=2.0, steering_rad=0.1).encode()
     cmd = decode(data, DriveCmd)        # MessageError if not a valid DriveCmd
     anything = decode_any(data)         # MessageError if not a valid known message
 
-Pure Python + numpy + msgpack: no zenoh import, usable by the maths and by tests.
+Python + numpy + msgspec: no zenoh import, usable by the maths and by tests.
 """
 
 from shared.messages.codec import (

@@ -1,4 +1,4 @@
-"""The message records of racestack (one frozen, validated dataclass per message type).
+"""The message records of racestack (one frozen, validated msgspec Struct per message type).
 
 Units are in the field names (``_m``, ``_rad``, ``_mps``, ``_radps``, ``_mps2``, ``_s``,
 ``_ms``, ``_a``, ``_v``, ``_c``). Every record also has ``stamp_s`` (the sender's clock [s])
@@ -9,24 +9,19 @@ are plausibility limits that keep garbage away from the maths, not the car's act
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Annotated, Literal, get_args
 
 import numpy as np
+from msgspec import Meta
 
 from shared.messages.codec import (
     MAX_STAMP_S,
+    MAX_STR_LEN,
     Array,
     Message,
     MessageError,
-    f_bool,
-    f_choice,
-    f_int,
-    f_opt_int,
-    f_opt_real,
-    f_real,
-    f_str,
-    meta,
+    coerce_arrays,
 )
 
 #: |x|, |y| limit of positions [m].
@@ -52,15 +47,22 @@ MAX_BEAMS = 100_000
 #: Longest name of a log source [characters].
 MAX_SOURCE_LEN = 64
 
-_POS = (-MAX_POS_M, MAX_POS_M)
-_ANGLE = (-MAX_ANGLE_RAD, MAX_ANGLE_RAD)
-_SPEED = (-MAX_SPEED_MPS, MAX_SPEED_MPS)
-_STEER = (-MAX_STEER_RAD, MAX_STEER_RAD)
-_YAW_RATE = (-MAX_YAW_RATE_RADPS, MAX_YAW_RATE_RADPS)
-_ACCEL = (-MAX_ACCEL_MPS2, MAX_ACCEL_MPS2)
-_E_CON = (-MAX_E_CON_M, MAX_E_CON_M)
 
-_RECORD = {"frozen": True, "kw_only": True, "eq": False}
+# Field types: a float (an int is accepted and stored as a float) or an int in a range, bounds
+# included; msgspec enforces them in C.
+Pos = Annotated[float, Meta(ge=-MAX_POS_M, le=MAX_POS_M)]
+Angle = Annotated[float, Meta(ge=-MAX_ANGLE_RAD, le=MAX_ANGLE_RAD)]
+Speed = Annotated[float, Meta(ge=-MAX_SPEED_MPS, le=MAX_SPEED_MPS)]
+Steer = Annotated[float, Meta(ge=-MAX_STEER_RAD, le=MAX_STEER_RAD)]
+YawRate = Annotated[float, Meta(ge=-MAX_YAW_RATE_RADPS, le=MAX_YAW_RATE_RADPS)]
+Accel = Annotated[float, Meta(ge=-MAX_ACCEL_MPS2, le=MAX_ACCEL_MPS2)]
+Progress = Annotated[float, Meta(ge=-MAX_S_M, le=MAX_S_M)]
+ECon = Annotated[float, Meta(ge=-MAX_E_CON_M, le=MAX_E_CON_M)]
+Stamp = Annotated[float, Meta(ge=0.0, le=MAX_STAMP_S)]
+Temp = Annotated[float, Meta(ge=-100.0, le=300.0)]
+Current = Annotated[float, Meta(ge=-1000.0, le=1000.0)]
+Count = Annotated[int, Meta(ge=0, le=10**9)]
+Byte = Annotated[int, Meta(ge=0, le=255)]
 
 
 class PoseAxis(IntEnum):
@@ -88,19 +90,29 @@ class InputCol(IntEnum):
     V_P = 2
 
 
-PLAN_STATUSES = ("solved", "fallback", "braking", "recovering")
-PLAN_METHODS = ("cimpcc", "mpcc", "raceline")
-LAP_KINDS = ("start", "lap", "off_track", "back_on_track")
-LOG_LEVELS = ("debug", "info", "warning", "error")
-SIM_ACTIONS = ("reset", "pause", "resume")
-VESC_STATUSES = ("ok", "fault", "stale", "disconnected")
+# The allowed strings of the choice fields (msgspec rejects any other value).
+PlanStatus = Literal["solved", "fallback", "braking", "recovering"]
+PlanMethod = Literal["cimpcc", "mpcc", "raceline"]
+LapKind = Literal["start", "lap", "off_track", "back_on_track"]
+LogLevel = Literal["debug", "info", "warning", "error"]
+SimAction = Literal["reset", "pause", "resume"]
+VescStatus = Literal["ok", "fault", "stale", "disconnected"]
+PLAN_STATUSES: tuple[str, ...] = get_args(PlanStatus)
+PLAN_METHODS: tuple[str, ...] = get_args(PlanMethod)
+LAP_KINDS: tuple[str, ...] = get_args(LapKind)
+LOG_LEVELS: tuple[str, ...] = get_args(LogLevel)
+SIM_ACTIONS: tuple[str, ...] = get_args(SimAction)
+VESC_STATUSES: tuple[str, ...] = get_args(VescStatus)
+
+
+_COV = Array("<f8", ndim=2, cols=len(PoseAxis), min_len=len(PoseAxis), max_len=len(PoseAxis))
+_RANGES = Array("<f4", ndim=1, min_len=1, max_len=MAX_BEAMS, lo=0.0, allow_pos_inf=True)
 
 
 def _bad(record: Message, text: str) -> MessageError:
     return MessageError("bad_value", f"{type(record).__name__}: {text}")
 
 
-@dataclass(**_RECORD)
 class Pose(Message):
     """Pose of the car from a localiser or the simulator (map frame).
 
@@ -113,24 +125,13 @@ class Pose(Message):
 
     TYPE = "pose"
 
-    x_m: float = f_real(*_POS)
-    y_m: float = f_real(*_POS)
-    yaw_rad: float = f_real(*_ANGLE)
-    cov: np.ndarray | None = field(
-        default=None,
-        metadata=meta(
-            Array(
-                "<f8",
-                ndim=2,
-                cols=len(PoseAxis),
-                min_len=len(PoseAxis),
-                max_len=len(PoseAxis),
-                optional=True,
-            )
-        ),
-    )
+    x_m: Pos
+    y_m: Pos
+    yaw_rad: Angle
+    cov: Annotated[np.ndarray, _COV] | None = None
 
-    def _check(self) -> None:
+    def __post_init__(self) -> None:
+        coerce_arrays(self)
         c = self.cov
         if c is not None:
             if np.any(np.diag(c) < 0.0):
@@ -139,7 +140,6 @@ class Pose(Message):
                 raise _bad(self, "cov is not symmetric")
 
 
-@dataclass(**_RECORD)
 class Imu(Message):
     """IMU reading in the car frame.
 
@@ -150,12 +150,11 @@ class Imu(Message):
 
     TYPE = "imu"
 
-    yaw_rate_radps: float = f_real(*_YAW_RATE)
-    ax_mps2: float = f_real(*_ACCEL)
-    ay_mps2: float = f_real(*_ACCEL)
+    yaw_rate_radps: YawRate
+    ax_mps2: Accel
+    ay_mps2: Accel
 
 
-@dataclass(**_RECORD)
 class Odom(Message):
     """Wheel odometry from the VESC driver or the simulator.
 
@@ -167,12 +166,11 @@ class Odom(Message):
 
     TYPE = "odom"
 
-    speed_mps: float = f_real(*_SPEED)
-    steering_rad: float = f_real(*_STEER)
-    yaw_rate_radps: float | None = f_opt_real(*_YAW_RATE)
+    speed_mps: Speed
+    steering_rad: Steer
+    yaw_rate_radps: YawRate | None = None
 
 
-@dataclass(**_RECORD)
 class Scan(Message):
     """A 2D lidar scan; beam i points at ``angle_min_rad + i * angle_increment_rad``.
 
@@ -185,15 +183,12 @@ class Scan(Message):
 
     TYPE = "scan"
 
-    angle_min_rad: float = f_real(-2 * math.pi, 2 * math.pi)
-    angle_increment_rad: float = f_real(-math.pi, math.pi)
-    ranges_m: np.ndarray = field(
-        metadata=meta(
-            Array("<f4", ndim=1, min_len=1, max_len=MAX_BEAMS, lo=0.0, allow_pos_inf=True)
-        )
-    )
+    angle_min_rad: Annotated[float, Meta(ge=-2 * math.pi, le=2 * math.pi)]
+    angle_increment_rad: Annotated[float, Meta(ge=-math.pi, le=math.pi)]
+    ranges_m: Annotated[np.ndarray, _RANGES]
 
-    def _check(self) -> None:
+    def __post_init__(self) -> None:
+        coerce_arrays(self)
         if self.angle_increment_rad == 0.0:
             raise _bad(self, "angle_increment_rad is zero")
 
@@ -203,7 +198,6 @@ class Scan(Message):
         return self.angle_min_rad + self.angle_increment_rad * np.arange(n, dtype=float)
 
 
-@dataclass(**_RECORD)
 class State(Message):
     """The fused state of the car (localization bridge), what the planner starts from.
 
@@ -217,25 +211,24 @@ class State(Message):
 
     TYPE = "state"
 
-    x_m: float = f_real(*_POS)
-    y_m: float = f_real(*_POS)
-    yaw_rad: float = f_real(*_ANGLE)
-    speed_mps: float = f_real(*_SPEED)
-    yaw_rate_radps: float = f_real(*_YAW_RATE)
-    steering_rad: float = f_real(*_STEER)
-    source_stamp_s: float = f_real(0.0, MAX_STAMP_S)
-    valid: bool = f_bool()
+    x_m: Pos
+    y_m: Pos
+    yaw_rad: Angle
+    speed_mps: Speed
+    yaw_rate_radps: YawRate
+    steering_rad: Steer
+    source_stamp_s: Stamp
+    valid: bool
 
 
-@dataclass(**_RECORD)
 class DriveCmd(Message):
     """What the planner commands: speed [m/s] and front steering angle [rad] (left +)."""
 
     TYPE = "drive_cmd"
     RELIABLE = True
 
-    speed_mps: float = f_real(*_SPEED)
-    steering_rad: float = f_real(*_STEER)
+    speed_mps: Speed
+    steering_rad: Steer
 
 
 _HORIZON = Array(
@@ -253,7 +246,6 @@ _INPUTS = Array(
 _BETA = Array("<f8", ndim=1, min_len=1, max_len=MAX_HORIZON, lo=0.0, hi=1.0)
 
 
-@dataclass(**_RECORD)
 class Plan(Message):
     """One planner tick: the predicted horizon, the inputs, beta and solver statistics.
 
@@ -274,20 +266,21 @@ class Plan(Message):
 
     TYPE = "plan"
 
-    horizon: np.ndarray = field(metadata=meta(_HORIZON))
-    inputs: np.ndarray = field(metadata=meta(_INPUTS))
-    beta: np.ndarray = field(metadata=meta(_BETA))
-    status: str = f_choice(*PLAN_STATUSES)
-    solver_status: str = f_str(200)
-    iterations: int = f_int(0, 10**7)
-    solve_time_ms: float = f_real(0.0, 1e6)
-    method: str = f_choice(*PLAN_METHODS)
-    s_m: float = f_real(-MAX_S_M, MAX_S_M)
-    e_con_m: float = f_real(*_E_CON)
-    source_stamp_s: float = f_real(0.0, MAX_STAMP_S)
-    consecutive_failures: int = f_int(0, 10**9)
+    horizon: Annotated[np.ndarray, _HORIZON]
+    inputs: Annotated[np.ndarray, _INPUTS]
+    beta: Annotated[np.ndarray, _BETA]
+    status: PlanStatus
+    solver_status: Annotated[str, Meta(max_length=200)]
+    iterations: Annotated[int, Meta(ge=0, le=10**7)]
+    solve_time_ms: Annotated[float, Meta(ge=0.0, le=1e6)]
+    method: PlanMethod
+    s_m: Progress
+    e_con_m: ECon
+    source_stamp_s: Stamp
+    consecutive_failures: Count
 
-    def _check(self) -> None:
+    def __post_init__(self) -> None:
+        coerce_arrays(self)
         n = self.inputs.shape[0]
         if self.horizon.shape[0] != n + 1:
             raise _bad(self, f"horizon has {self.horizon.shape[0]} rows, inputs {n}: need N+1")
@@ -307,7 +300,6 @@ class Plan(Message):
         return int(self.inputs.shape[0])
 
 
-@dataclass(**_RECORD)
 class LapEvent(Message):
     """A lap event of the lap counter (planner or simulator).
 
@@ -324,19 +316,18 @@ class LapEvent(Message):
     TYPE = "lap_event"
     RELIABLE = True
 
-    kind: str = f_choice(*LAP_KINDS)
-    lap: int = f_int(0, 10**9)
-    lap_time_s: float | None = f_opt_real(0.0, 1e6)
-    mean_speed_mps: float | None = f_opt_real(*_SPEED)
-    off_track_events: int = f_int(0, 10**9)
-    max_abs_e_con_m: float | None = f_opt_real(0.0, MAX_E_CON_M)
+    kind: LapKind
+    lap: Count
+    lap_time_s: Annotated[float, Meta(ge=0.0, le=1e6)] | None = None
+    mean_speed_mps: Speed | None = None
+    off_track_events: Count
+    max_abs_e_con_m: Annotated[float, Meta(ge=0.0, le=MAX_E_CON_M)] | None = None
 
-    def _check(self) -> None:
+    def __post_init__(self) -> None:
         if self.kind == "lap" and self.lap_time_s is None:
             raise _bad(self, 'a "lap" event needs lap_time_s')
 
 
-@dataclass(**_RECORD)
 class VescState(Message):
     """Motor controller values (VESC COMM_GET_VALUES); None where unknown or not reported.
 
@@ -354,33 +345,32 @@ class VescState(Message):
 
     TYPE = "vesc_state"
 
-    status: str = f_choice(*VESC_STATUSES)
-    temp_fet_c: float | None = f_opt_real(-100.0, 300.0)
-    temp_motor_c: float | None = f_opt_real(-100.0, 300.0)
-    avg_motor_current_a: float | None = f_opt_real(-1000.0, 1000.0)
-    avg_input_current_a: float | None = f_opt_real(-1000.0, 1000.0)
-    avg_id_a: float | None = f_opt_real(-1000.0, 1000.0)
-    avg_iq_a: float | None = f_opt_real(-1000.0, 1000.0)
-    duty: float | None = f_opt_real(-1.0, 1.0)
-    erpm: float | None = f_opt_real(-1e6, 1e6)
-    v_in_v: float | None = f_opt_real(0.0, 200.0)
-    amp_hours: float | None = f_opt_real(0.0, 1e6)
-    amp_hours_charged: float | None = f_opt_real(0.0, 1e6)
-    watt_hours: float | None = f_opt_real(0.0, 1e7)
-    watt_hours_charged: float | None = f_opt_real(0.0, 1e7)
-    tachometer: int | None = f_opt_int(-(2**31), 2**31 - 1)
-    tachometer_abs: int | None = f_opt_int(0, 2**32 - 1)
-    fault_code: int | None = f_opt_int(0, 255)
-    pid_pos_deg: float | None = f_opt_real(-1e6, 1e6)
-    controller_id: int | None = f_opt_int(0, 255)
-    temp_mos1_c: float | None = f_opt_real(-100.0, 300.0)
-    temp_mos2_c: float | None = f_opt_real(-100.0, 300.0)
-    temp_mos3_c: float | None = f_opt_real(-100.0, 300.0)
-    avg_vd_v: float | None = f_opt_real(-1000.0, 1000.0)
-    avg_vq_v: float | None = f_opt_real(-1000.0, 1000.0)
+    status: VescStatus
+    temp_fet_c: Temp | None = None
+    temp_motor_c: Temp | None = None
+    avg_motor_current_a: Current | None = None
+    avg_input_current_a: Current | None = None
+    avg_id_a: Current | None = None
+    avg_iq_a: Current | None = None
+    duty: Annotated[float, Meta(ge=-1.0, le=1.0)] | None = None
+    erpm: Annotated[float, Meta(ge=-1e6, le=1e6)] | None = None
+    v_in_v: Annotated[float, Meta(ge=0.0, le=200.0)] | None = None
+    amp_hours: Annotated[float, Meta(ge=0.0, le=1e6)] | None = None
+    amp_hours_charged: Annotated[float, Meta(ge=0.0, le=1e6)] | None = None
+    watt_hours: Annotated[float, Meta(ge=0.0, le=1e7)] | None = None
+    watt_hours_charged: Annotated[float, Meta(ge=0.0, le=1e7)] | None = None
+    tachometer: Annotated[int, Meta(ge=-(2**31), le=2**31 - 1)] | None = None
+    tachometer_abs: Annotated[int, Meta(ge=0, le=2**32 - 1)] | None = None
+    fault_code: Byte | None = None
+    pid_pos_deg: Annotated[float, Meta(ge=-1e6, le=1e6)] | None = None
+    controller_id: Byte | None = None
+    temp_mos1_c: Temp | None = None
+    temp_mos2_c: Temp | None = None
+    temp_mos3_c: Temp | None = None
+    avg_vd_v: Current | None = None
+    avg_vq_v: Current | None = None
 
 
-@dataclass(**_RECORD)
 class SimTruth(Message):
     """Simulator ground truth (full dynamic state and track-relative quantities).
 
@@ -395,20 +385,19 @@ class SimTruth(Message):
 
     TYPE = "sim_truth"
 
-    x_m: float = f_real(*_POS)
-    y_m: float = f_real(*_POS)
-    yaw_rad: float = f_real(*_ANGLE)
-    speed_mps: float = f_real(*_SPEED)
-    yaw_rate_radps: float = f_real(*_YAW_RATE)
-    slip_rad: float = f_real(-math.pi, math.pi)
-    steering_rad: float = f_real(*_STEER)
-    s_m: float = f_real(-MAX_S_M, MAX_S_M)
-    e_con_m: float = f_real(*_E_CON)
-    off_track: bool = f_bool()
-    lap: int = f_int(0, 10**9)
+    x_m: Pos
+    y_m: Pos
+    yaw_rad: Angle
+    speed_mps: Speed
+    yaw_rate_radps: YawRate
+    slip_rad: Annotated[float, Meta(ge=-math.pi, le=math.pi)]
+    steering_rad: Steer
+    s_m: Progress
+    e_con_m: ECon
+    off_track: bool
+    lap: Count
 
 
-@dataclass(**_RECORD)
 class LogEvent(Message):
     """A warning or text log record of any service.
 
@@ -421,19 +410,18 @@ class LogEvent(Message):
     TYPE = "log_event"
     RELIABLE = True
 
-    level: str = f_choice(*LOG_LEVELS)
-    source: str = f_str(MAX_SOURCE_LEN)
-    text: str = f_str()
+    level: LogLevel
+    source: Annotated[str, Meta(max_length=MAX_SOURCE_LEN)]
+    text: Annotated[str, Meta(max_length=MAX_STR_LEN)]
 
 
-@dataclass(**_RECORD)
 class SimControl(Message):
     """A request to the simulator: action "reset" | "pause" | "resume"."""
 
     TYPE = "sim_control"
     RELIABLE = True
 
-    action: str = f_choice(*SIM_ACTIONS)
+    action: SimAction
 
 
 #: Every message class, in contract order.

@@ -8,7 +8,6 @@ import pytest
 
 from shared.keys import TOPIC_TYPES, Keys, check_chunk
 from shared.messages import MESSAGE_TYPES, REGISTRY
-from shared.messages.codec import field_specs
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "message-contract.md"
 
@@ -67,5 +66,5 @@ def test_contract_doc_lists_every_key_and_type() -> None:
         assert f"`{suffix}`" in text, suffix
     for cls in MESSAGE_TYPES:
         assert f"`{cls.__name__}`" in text, cls.__name__
-        for name, _, _ in field_specs(cls):
-            assert f"`{name}`" in text, f"{cls.__name__}.{name}"
+        for f in cls.fields_info():
+            assert f"`{f.name}`" in text, f"{cls.__name__}.{f.name}"

@@ -9,6 +9,7 @@ from typing import Any
 import msgpack
 import numpy as np
 import pytest
+from msgspec.inspect import BoolType, CustomType, FloatType, IntType, LiteralType, StrType
 
 from shared.messages import (
     MESSAGE_TYPES,
@@ -31,7 +32,7 @@ from shared.messages import (
     decode,
     decode_any,
 )
-from shared.messages.codec import Array, Bool, Int, Real, Str, field_specs
+from shared.messages.codec import FieldInfo
 
 Sample = Callable[[type[Message]], Message]
 TYPES = pytest.mark.parametrize("cls", MESSAGE_TYPES, ids=lambda c: c.__name__)
@@ -56,11 +57,17 @@ def _reason(data: bytes, cls: type[Message] | None = None) -> str:
     return info.value.reason
 
 
-def _fields(cls: type[Message], kind: type) -> list[tuple[str, Any]]:
-    return [(name, spec) for name, spec, _ in field_specs(cls) if isinstance(spec, kind)]
+# Field kinds as msgspec describes them: floats and ints (with their bounds ge/le), bools,
+# strings (free text: StrType; from an allowed set: LiteralType) and arrays (CustomType).
+Real, Int, Bool, Array = FloatType, IntType, BoolType, CustomType
+Str = (StrType, LiteralType)
 
 
-def _all(kind: type) -> list[tuple[type[Message], str, Any]]:
+def _fields(cls: type[Message], kind: type | tuple[type, ...]) -> list[tuple[str, FieldInfo]]:
+    return [(f.name, f) for f in cls.fields_info() if isinstance(f.type, kind)]
+
+
+def _all(kind: type | tuple[type, ...]) -> list[tuple[type[Message], str, FieldInfo]]:
     return [(c, n, s) for c in MESSAGE_TYPES for n, s in _fields(c, kind)]
 
 
@@ -132,9 +139,9 @@ def test_optional_fields_default_to_none_and_may_be_absent_on_the_wire() -> None
     v = VescState(stamp_s=0.0, status="disconnected")
     assert v.erpm is None and v.fault_code is None
     wire = _wire(v)
-    for name, _, required in field_specs(VescState):
-        if not required:
-            del wire[name]
+    for f in VescState.fields_info():
+        if not f.required:
+            del wire[f.name]
     assert decode(_pack(wire), VescState) == v
     odom = Odom(stamp_s=0.0, speed_mps=1.0, steering_rad=0.0)
     assert odom.yaw_rate_radps is None
@@ -213,6 +220,21 @@ def test_invalid_utf8_string() -> None:
     assert _reason(data) == "not_msgpack"
 
 
+def test_invalid_utf8_in_a_field_and_in_an_unknown_key(sample: Sample) -> None:
+    """A string field that is not UTF-8 makes the payload undecodable; an unknown key's value
+    is skipped unread, like the rest of that key (so it is not checked either)."""
+    good = sample(LogEvent).encode()
+    bad_text = good.replace(b"\xaaslow solve", b"\xa2\xff\xfe")
+    assert _reason(bad_text, LogEvent) == "not_msgpack"
+    wire = _wire(sample(LogEvent))
+    wire["zz"] = "x"
+    extra = _pack(wire).replace(b"\xa2zz\xa1x", b"\xa2zz\xa2\xff\xfe")
+    assert decode(extra, LogEvent) == sample(LogEvent)
+    wire["text"] = 1.5  # a bad field beside bad UTF-8: the framing problem is reported first
+    both = _pack(wire).replace(b"\xa2zz\xa1x", b"\xa2zz\xa2\xff\xfe")
+    assert _reason(both, LogEvent) == "not_msgpack"
+
+
 # --------------------------------------------------------------------------- type / version
 @TYPES
 def test_type_tag_problems(cls: type[Message], sample: Sample) -> None:
@@ -245,7 +267,7 @@ def test_decode_any_checks_the_version_too(sample: Sample) -> None:
 # --------------------------------------------------------------------------- fields
 @pytest.mark.parametrize(
     ("cls", "name"),
-    [(c, n) for c in MESSAGE_TYPES for n, _, req in field_specs(c) if req],
+    [(c, f.name) for c in MESSAGE_TYPES for f in c.fields_info() if f.required],
     ids=lambda x: x.__name__ if isinstance(x, type) else x,
 )
 def test_missing_required_field(cls: type[Message], name: str, sample: Sample) -> None:
@@ -255,7 +277,7 @@ def test_missing_required_field(cls: type[Message], name: str, sample: Sample) -
 
 
 @pytest.mark.parametrize("case", _all(Real), ids=_ids)
-def test_non_finite_floats(case: tuple[type[Message], str, Real], sample: Sample) -> None:
+def test_non_finite_floats(case: tuple[type[Message], str, FieldInfo], sample: Sample) -> None:
     cls, name, _ = case
     for bad in (math.nan, math.inf, -math.inf):
         wire = _wire(sample(cls))
@@ -264,11 +286,12 @@ def test_non_finite_floats(case: tuple[type[Message], str, Real], sample: Sample
 
 
 @pytest.mark.parametrize(
-    "case", [c for c in _all(Real) if math.isfinite(c[2].hi) or math.isfinite(c[2].lo)], ids=_ids
+    "case", [c for c in _all(Real) if c[2].type.le is not None or c[2].type.ge is not None],
+    ids=_ids,
 )
-def test_out_of_range_floats(case: tuple[type[Message], str, Real], sample: Sample) -> None:
+def test_out_of_range_floats(case: tuple[type[Message], str, FieldInfo], sample: Sample) -> None:
     cls, name, spec = case
-    bad = spec.hi * 2 + 1 if math.isfinite(spec.hi) else spec.lo * 2 - 1
+    bad = spec.type.le * 2 + 1 if spec.type.le is not None else spec.type.ge * 2 - 1
     wire = _wire(sample(cls))
     wire[name] = bad
     assert _reason(_pack(wire), cls) == "out_of_range"
@@ -277,13 +300,13 @@ def test_out_of_range_floats(case: tuple[type[Message], str, Real], sample: Samp
 
 
 @pytest.mark.parametrize("case", _all(Real) + _all(Int) + _all(Str), ids=_ids)
-def test_wrong_field_types(case: tuple[type[Message], str, Any], sample: Sample) -> None:
+def test_wrong_field_types(case: tuple[type[Message], str, FieldInfo], sample: Sample) -> None:
     cls, name, spec = case
     bad_values: list[Any] = [[1.0], {"x": 1}, b"\x00"]
-    bad_values.append(1.0 if isinstance(spec, Str) else "1.0")
-    if not isinstance(spec, Str):
+    bad_values.append(1.0 if isinstance(spec.type, Str) else "1.0")
+    if not isinstance(spec.type, Str):
         bad_values.append(True)  # booleans are not numbers here
-    if isinstance(spec, Int):
+    if isinstance(spec.type, Int):
         bad_values.append(1.5)
     if not spec.optional:
         bad_values.append(None)
@@ -295,7 +318,7 @@ def test_wrong_field_types(case: tuple[type[Message], str, Any], sample: Sample)
 
 @pytest.mark.parametrize("case", _all(Bool), ids=_ids)
 def test_bool_fields_reject_other_types(
-    case: tuple[type[Message], str, Bool], sample: Sample
+    case: tuple[type[Message], str, FieldInfo], sample: Sample
 ) -> None:
     cls, name, _ = case
     for bad in (1, 0, "true", None, 1.0):
@@ -304,9 +327,9 @@ def test_bool_fields_reject_other_types(
         assert _reason(_pack(wire), cls) == "bad_type"
 
 
-@pytest.mark.parametrize("case", [c for c in _all(Str) if c[2].choices], ids=_ids)
+@pytest.mark.parametrize("case", _all(LiteralType), ids=_ids)
 def test_strings_outside_the_allowed_set(
-    case: tuple[type[Message], str, Str], sample: Sample
+    case: tuple[type[Message], str, FieldInfo], sample: Sample
 ) -> None:
     cls, name, _ = case
     wire = _wire(sample(cls))
@@ -323,8 +346,10 @@ def test_too_long_text() -> None:
 
 # --------------------------------------------------------------------------- arrays
 @pytest.mark.parametrize("case", _all(Array), ids=_ids)
-def test_array_wire_problems(case: tuple[type[Message], str, Array], sample: Sample) -> None:
-    cls, name, spec = case
+def test_array_wire_problems(case: tuple[type[Message], str, FieldInfo], sample: Sample) -> None:
+    cls, name, field = case
+    spec = field.array
+    assert spec is not None
     good = _wire(sample(cls))[name]
     other_dtype = "<f4" if spec.dtype == "<f8" else "<f8"
     arr = np.frombuffer(good["data"], dtype=spec.dtype).reshape(good["shape"])
@@ -348,7 +373,7 @@ def test_array_wire_problems(case: tuple[type[Message], str, Array], sample: Sam
 
 
 @pytest.mark.parametrize("case", _all(Array), ids=_ids)
-def test_array_nan(case: tuple[type[Message], str, Array], sample: Sample) -> None:
+def test_array_nan(case: tuple[type[Message], str, FieldInfo], sample: Sample) -> None:
     cls, name, _ = case
     kwargs = _kwargs(sample(cls))
     arr = np.array(kwargs[name], copy=True)
@@ -447,6 +472,45 @@ def test_constructor_rejects(make: Callable[[], Message], reason: str) -> None:
     assert info.value.reason == reason
 
 
+def test_constructors_take_known_keywords_only() -> None:
+    with pytest.raises(TypeError):
+        DriveCmd(0.0, 1.0, 0.0)  # type: ignore[misc]
+    with pytest.raises(TypeError, match="steering_rad"):
+        DriveCmd(stamp_s=0.0, speed_mps=1.0)  # type: ignore[call-arg]
+    with pytest.raises(TypeError, match="steer"):
+        DriveCmd(stamp_s=0.0, speed_mps=1.0, steering_rad=0.0, steer=0.1)  # type: ignore[call-arg]
+
+
+def test_check_field_validates_one_value() -> None:
+    assert VescState.check_field("duty", np.float32(0.5)) == 0.5
+    assert type(VescState.check_field("erpm", 12000)) is float
+    assert VescState.check_field("fault_code", None) is None
+    for name, bad, reason in (("duty", 1.5, "out_of_range"), ("duty", math.nan, "not_finite"),
+                              ("fault_code", 1.0, "bad_type"), ("status", "weird", "bad_value")):
+        with pytest.raises(MessageError) as info:
+            VescState.check_field(name, bad)
+        assert info.value.reason == reason and name in info.value.detail
+
+
+@TYPES
+def test_records_pickle_and_copy(cls: type[Message], sample: Sample) -> None:
+    import copy
+    import pickle
+
+    msg = sample(cls).with_seq(5)
+    for other in (pickle.loads(pickle.dumps(msg)), copy.copy(msg), copy.deepcopy(msg)):
+        assert type(other) is cls and other == msg and other.encode() == msg.encode()
+
+
+def test_fields_info_in_wire_order() -> None:
+    names = [f.name for f in DriveCmd.fields_info()]
+    assert names == ["stamp_s", "seq", "speed_mps", "steering_rad"]
+    assert list(_wire(DriveCmd(stamp_s=0.0, speed_mps=0.0, steering_rad=0.0))) == [
+        "type", "v", *names
+    ]
+    assert dict(DriveCmd.fields_doc())["steering_rad"] == "float in [-1, 1]"
+
+
 def test_edge_values_accepted() -> None:
     DriveCmd(stamp_s=0.0, speed_mps=50.0, steering_rad=-1.0)
     LapEvent(stamp_s=0.0, kind="start", lap=0, off_track_events=0)
@@ -454,7 +518,7 @@ def test_edge_values_accepted() -> None:
 
 
 def _kwargs(msg: Message) -> dict[str, Any]:
-    return {name: getattr(msg, name) for name, _, _ in field_specs(type(msg))}
+    return {f.name: getattr(msg, f.name) for f in type(msg).fields_info()}
 
 
 def test_numbers_of_any_numeric_type_are_normalised() -> None:
