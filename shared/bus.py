@@ -28,15 +28,21 @@ Rules this module enforces (see ``/work/shared/docs/zenoh-rerun-notes.md``):
   0.95-0.97 ms p99, against 0.66-0.69 / 1.27-1.40 ms for callback + hand-over.
 * ``Bus.close`` (and ``__exit__``) always closes the session: a process with a callback
   subscriber never exits while its session is open; a thread in ``recv`` returns None.
+* A service never dies of its own invalid record: ``TypedPublisher.try_put(**fields)`` builds
+  and publishes a record, and one that fails validation is not sent but counted per key and
+  reason in ``Bus.faults`` (a ``FaultCounter``, logged once per burst);
+  ``FaultCounter.guard(key)`` does the same around code that builds records itself.
+  ``DropReporter`` publishes the growth of both counters on ``events/log``.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Generic, TypeVar
 
 import zenoh
@@ -67,6 +73,15 @@ class DropCounter:
     next drop arrives after the interval, or on ``flush``).
     """
 
+    #: Log line of the first event of a (key, reason) pair: key, reason, detail, interval [s].
+    FIRST_LINE = (
+        "dropped a message on %s: %s (%s); more of these are summarised at most every %.0f s"
+    )
+    #: Summary line: count, key, reason, seconds since the last line, latest detail.
+    SUMMARY_LINE = "dropped %d more messages on %s: %s in the last %.1f s (latest: %s)"
+    #: Level of both lines.
+    LEVEL = logging.WARNING
+
     def __init__(
         self,
         *,
@@ -92,25 +107,21 @@ class DropCounter:
             state = self._pending.get(kr)
             if state is None:
                 self._pending[kr] = [now, 0, detail]
-                line = (
-                    "dropped a message on %s: %s (%s); more of these are summarised "
-                    "at most every %.0f s",
-                    (key, reason, detail, self._interval),
-                )
+                line = (self.FIRST_LINE, (key, reason, detail, self._interval))
             else:
                 state[1] += 1
                 state[2] = detail
                 if now - state[0] >= self._interval:
                     line = self._summary(kr, state, now)
         if line is not None:
-            self._log.warning(line[0], *line[1])
+            self._log.log(self.LEVEL, line[0], *line[1])
 
-    @staticmethod
-    def _summary(kr: tuple[str, str], state: list[Any], now: float) -> tuple[str, tuple[Any, ...]]:
-        text = "dropped %d more messages on %s: %s in the last %.1f s (latest: %s)"
+    def _summary(
+        self, kr: tuple[str, str], state: list[Any], now: float
+    ) -> tuple[str, tuple[Any, ...]]:
         args = (state[1], kr[0], kr[1], now - state[0], state[2])
         state[0], state[1] = now, 0
-        return text, args
+        return self.SUMMARY_LINE, args
 
     def flush(self) -> None:
         """Log the summary of every burst not yet reported (call at shutdown)."""
@@ -118,7 +129,7 @@ class DropCounter:
         with self._lock:
             lines = [self._summary(kr, st, now) for kr, st in self._pending.items() if st[1]]
         for text, args in lines:
-            self._log.warning(text, *args)
+            self._log.log(self.LEVEL, text, *args)
 
     def count(self, key: str | None = None, reason: str | None = None) -> int:
         """Drops so far, filtered by key and/or reason (None: any)."""
@@ -138,6 +149,38 @@ class DropCounter:
         """A copy of the counts: (key, reason) -> drops (for telemetry and tests)."""
         with self._lock:
             return dict(self._counts)
+
+
+class FaultCounter(DropCounter):
+    """A service's OWN faults per (key, reason), with the rate-limited logging of
+    ``DropCounter`` (at error level).
+
+    What it counts: records the service built that failed validation (``MessageError``; the
+    reason is the error's, the key the one it was meant for; nothing invalid is ever sent),
+    and other faults a service recovers from by itself (e.g. the simulator's car state
+    leaving the contract, under a key of its choosing). ``DropReporter`` publishes its growth
+    on ``events/log``.
+    """
+
+    FIRST_LINE = (
+        "own fault on %s: %s (%s); nothing invalid was published and the service goes on; "
+        "more of these are summarised at most every %.0f s"
+    )
+    SUMMARY_LINE = "%d more own faults on %s: %s in the last %.1f s (latest: %s)"
+    LEVEL = logging.ERROR
+
+    @contextlib.contextmanager
+    def guard(self, key: str) -> Iterator[None]:
+        """Count a ``MessageError`` raised in the block as a fault on `key` instead of
+        letting it end the caller (the rest of the block is skipped)::
+
+            with bus.faults.guard(bus.keys.state):
+                state_pub.put(assemble_state(...))  # an invalid State: counted, not sent
+        """
+        try:
+            yield
+        except MessageError as exc:
+            self.record(key, exc.reason, exc.detail)
 
 
 # --------------------------------------------------------------------------- hand-over
@@ -270,12 +313,27 @@ def wait_matching(publisher: TypedPublisher[Any] | zenoh.Publisher, timeout_s: f
 
 # --------------------------------------------------------------------------- publish
 class TypedPublisher(Generic[M]):
-    """Publishes records of one message type on one key, stamping sequence numbers."""
+    """Publishes records of one message type on one key, stamping sequence numbers.
 
-    def __init__(self, raw: zenoh.Publisher, key: str, msg_type: type[M]) -> None:
+    Args:
+        raw: the declared zenoh.Publisher.
+        key: its key.
+        msg_type: the message class published there.
+        faults: where ``try_put`` counts records that fail validation (the bus's
+            ``faults``; None: a counter of this publisher's own).
+    """
+
+    def __init__(
+        self,
+        raw: zenoh.Publisher,
+        key: str,
+        msg_type: type[M],
+        faults: FaultCounter | None = None,
+    ) -> None:
         self.raw = raw  #: the underlying zenoh.Publisher
         self.key = key
         self.msg_type = msg_type
+        self.faults = faults if faults is not None else FaultCounter()
         self._lock = threading.Lock()
         self._next_seq = 0
 
@@ -295,6 +353,26 @@ class TypedPublisher(Generic[M]):
             self._next_seq += 1
         self.raw.put(record.encode(seq))  # sent first; the stamped copy is for the caller
         return record.with_seq(seq)
+
+    def try_put(self, **fields: Any) -> M | None:
+        """Build a record of this publisher's type from `fields` (keyword arguments of its
+        constructor, ``seq`` excluded) and publish it; returns the stamped record.
+
+        A record that fails validation (``MessageError``: NaN, a value out of range, ...) is
+        not sent: it is counted in ``faults`` on this key with the error's reason (logged
+        once per burst; ``DropReporter`` reports it on ``events/log``) and None is returned,
+        so a bad value of the service's own never ends its loop. Wrong field names still
+        raise ``TypeError`` (a programming error, not a value).
+
+        Raises:
+            zenoh.ZError: the session is closed.
+        """
+        try:
+            record = self.msg_type(**fields)
+        except MessageError as exc:
+            self.faults.record(self.key, exc.reason, exc.detail)
+            return None
+        return self.put(record)
 
     @property
     def next_seq(self) -> int:
@@ -536,6 +614,7 @@ class Bus:
         mode: Mode | None = None,
         announce: bool = True,
         drops: DropCounter | None = None,
+        faults: FaultCounter | None = None,
     ) -> None:
         """Open the session and (if `announce`) declare this service's liveliness token.
 
@@ -547,11 +626,14 @@ class Bus:
             mode: the service's built-in Zenoh mode (None: ``settings.mode``).
             announce: declare the liveliness token now.
             drops: a shared drop counter (default: a new one, ``self.drops``).
+            faults: a shared counter of this service's own faults (default: a new one,
+                ``self.faults``): records of its own that failed validation.
         """
         self.service = check_chunk(service, "service name")
         self.settings = settings
         self.keys = Keys(settings.car)
         self.drops = drops or DropCounter()
+        self.faults = faults or FaultCounter()
         self._lock = threading.Lock()
         self._closed = False
         self._tokens: list[zenoh.LivelinessToken] = []
@@ -587,6 +669,7 @@ class Bus:
             self._closed = True
         try:
             self.drops.flush()
+            self.faults.flush()
         except Exception:  # pragma: no cover
             log.exception("flushing drop summaries failed")
         try:
@@ -626,7 +709,7 @@ class Bus:
             priority=priority,
             express=express,
         )
-        return TypedPublisher(raw, key, msg_type)
+        return TypedPublisher(raw, key, msg_type, self.faults)
 
     def subscribe(
         self,
@@ -725,12 +808,15 @@ class Bus:
 
 
 class DropReporter:
-    """Publishes a service's rejected-message counts on ``events/log`` when they grow.
+    """Publishes a service's rejected-message and own-fault counts on ``events/log``.
 
     Call ``poll()`` from the service's loop; at most once per ``period_s`` it compares the
-    bus's ``DropCounter`` with the last report and, if anything was dropped since, publishes
-    one warning ``LogEvent`` such as ``rejected 3 messages (total 7): racestack/car0/state
-    decode_error x3``. This makes the counts visible to telemetry, tests and operators.
+    bus's ``DropCounter`` and ``FaultCounter`` with the last report and publishes, for each
+    that grew, one ``LogEvent``: a warning such as ``rejected 3 messages (total 7):
+    racestack/car0/state not_msgpack x3`` for invalid payloads received, an error such as
+    ``own faults: 2 (total 2), not published: racestack/car0/sim/truth out_of_range x2``
+    for records of its own that failed validation (and other faults it recovered from).
+    This makes the counts visible to telemetry, tests and operators.
     """
 
     def __init__(
@@ -752,24 +838,42 @@ class DropReporter:
         self._pub = publisher or bus.publisher(bus.keys.events_log, LogEvent)
         self._event = LogEvent
         self._last: dict[tuple[str, str], int] = {}
+        self._last_faults: dict[tuple[str, str], int] = {}
         self._next = 0.0
-        self.reports = 0
+        self.reports = 0  #: LogEvents published (both kinds)
+
+    @staticmethod
+    def _growth(
+        snap: dict[tuple[str, str], int], last: dict[tuple[str, str], int]
+    ) -> tuple[int, str]:
+        new = {kr: n - last.get(kr, 0) for kr, n in snap.items() if n > last.get(kr, 0)}
+        return sum(new.values()), ", ".join(f"{k} {r} x{n}" for (k, r), n in sorted(new.items()))
+
+    def _publish(self, level: str, text: str) -> None:
+        self._pub.put(
+            self._event(stamp_s=time.time(), level=level, source=self._service, text=text[:900])
+        )
+        self.reports += 1
 
     def poll(self) -> bool:
-        """Report new drops if due; True when a report was published."""
+        """Report new drops and own faults if due; True when a report was published."""
         now = self._clock()
         if now < self._next:
             return False
         self._next = now + self._period
+        published = False
         snap = self._bus.drops.snapshot()
-        new = {kr: n - self._last.get(kr, 0) for kr, n in snap.items() if n > self._last.get(kr, 0)}
-        if not new:
-            return False
-        self._last = snap
-        parts = ", ".join(f"{k} {r} x{n}" for (k, r), n in sorted(new.items()))
-        text = f"rejected {sum(new.values())} messages (total {sum(snap.values())}): {parts}"
-        self._pub.put(
-            self._event(stamp_s=time.time(), level="warning", source=self._service, text=text[:900])
-        )
-        self.reports += 1
-        return True
+        n, parts = self._growth(snap, self._last)
+        if n:
+            self._last = snap
+            self._publish("warning", f"rejected {n} messages (total {sum(snap.values())}): {parts}")
+            published = True
+        faults = self._bus.faults.snapshot()
+        n, parts = self._growth(faults, self._last_faults)
+        if n:
+            self._last_faults = faults
+            self._publish(
+                "error", f"own faults: {n} (total {sum(faults.values())}), not published: {parts}"
+            )
+            published = True
+        return published

@@ -15,11 +15,17 @@ import sys
 import threading
 from collections.abc import Callable, Sequence
 
+from shared.bus import FaultCounter
 from shared.config import ConfigError, RacestackConfig, load_config
+from shared.messages import MessageError
 from shared.track import TrackError
 
 Body = Callable[[RacestackConfig, argparse.Namespace, threading.Event], int]
 AddArgs = Callable[[argparse.ArgumentParser], None]
+
+#: Pause before a worker loop is re-entered after a fault of its own [s] (bounds the rate
+#: of a loop that would fail at once on every entry).
+WORKER_RESTART_PAUSE_S = 0.001
 
 
 class Worker:
@@ -31,25 +37,60 @@ class Worker:
     ``check()`` / ``join()``, so a crash still ends the service with an error; after `stop`
     was set by someone else (shutdown: the bus is closing under the worker), it is only
     logged.
+
+    A ``MessageError`` is no crash: received payloads are validated by the bus and never
+    raise, so it comes from a record of the service's own that failed validation (a value
+    it computed left the contract). It is counted in `faults` (key `fault_key`, the error's
+    reason; pass ``bus.faults`` so ``DropReporter`` reports it on ``events/log``) and the
+    loop is entered again for the next input: the loop must be re-entrant (block on its
+    input, keep its state outside).
+
+    Args:
+        name: thread name.
+        loop: the loop; returns when the service stops (e.g. its ``recv`` gives None).
+        stop: the service's stop event.
+        faults: where faults of its own are counted (None: a counter of its own, logged).
+        fault_key: the key they are counted under (None: ``"worker/<name>"``).
     """
 
-    def __init__(self, name: str, loop: Callable[[], None], stop: threading.Event) -> None:
+    def __init__(
+        self,
+        name: str,
+        loop: Callable[[], None],
+        stop: threading.Event,
+        *,
+        faults: FaultCounter | None = None,
+        fault_key: str | None = None,
+    ) -> None:
         self._loop = loop
         self._stop = stop
         self._error: BaseException | None = None
+        self.faults = faults if faults is not None else FaultCounter()
+        self.fault_key = fault_key or f"worker/{name}"
+        self.restarts = 0  #: times the loop was re-entered after a fault of its own
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
 
     def _run(self) -> None:
-        try:
-            self._loop()
-        except BaseException as exc:
-            if self._stop.is_set():
-                logging.getLogger(__name__).debug(
-                    "%s ended during shutdown: %r", self._thread.name, exc
-                )
-            else:
-                self._error = exc
-                self._stop.set()
+        log = logging.getLogger(__name__)
+        while True:
+            try:
+                self._loop()
+                return
+            except MessageError as exc:
+                if self._stop.is_set():
+                    log.debug("%s ended during shutdown: %r", self._thread.name, exc)
+                    return
+                self.faults.record(self.fault_key, exc.reason, exc.detail)
+                self.restarts += 1
+                if self._stop.wait(WORKER_RESTART_PAUSE_S):
+                    return
+            except BaseException as exc:
+                if self._stop.is_set():
+                    log.debug("%s ended during shutdown: %r", self._thread.name, exc)
+                else:
+                    self._error = exc
+                    self._stop.set()
+                return
 
     def start(self) -> Worker:
         """Start the thread; returns self."""

@@ -12,6 +12,8 @@ predicted forward to the bridge's clock with the kinematic unicycle
 ``x += v cos(yaw) dt``, ``y += v sin(yaw) dt``, ``yaw += r dt`` (v from odometry, r the yaw
 rate), ``dt = now - pose.stamp_s`` clipped to ``[0, max_prediction_s]``. ``source_stamp_s``
 stays the pose's capture stamp, so consumers still see how old the information is.
+The predicted position is kept inside the contract's position limits (a pose at the edge
+of them may not be pushed beyond) and the yaw is wrapped into [-pi, pi].
 An EKF fusing all three comes with the localization issue.
 """
 
@@ -21,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 from shared.messages import Imu, Odom, Pose, State
+from shared.messages.records import MAX_POS_M
 
 
 @dataclass
@@ -60,8 +63,8 @@ class StateAssembler:
         dt = min(max(stamp_s - pose.stamp_s, 0.0), self.max_prediction_s)
         # second-order (midpoint) unicycle prediction over dt
         yaw_mid = pose.yaw_rad + 0.5 * yaw_rate * dt
-        x = pose.x_m + speed * math.cos(yaw_mid) * dt
-        y = pose.y_m + speed * math.sin(yaw_mid) * dt
+        x = min(max(pose.x_m + speed * math.cos(yaw_mid) * dt, -MAX_POS_M), MAX_POS_M)
+        y = min(max(pose.y_m + speed * math.sin(yaw_mid) * dt, -MAX_POS_M), MAX_POS_M)
         yaw = math.remainder(pose.yaw_rad + yaw_rate * dt, 2 * math.pi)
         return State(
             stamp_s=stamp_s,

@@ -1,6 +1,9 @@
 """The localization bridge service: ``vehicle/pose``, ``vehicle/imu``, ``vehicle/odom`` in,
 ``state`` out (one State per pose, published as soon as the pose arrives, by a worker
-thread blocked on the pose channel)."""
+thread blocked on the pose channel).
+
+A State of its own that fails validation is not sent: it is counted in ``bus.faults`` and
+reported on ``events/log`` (``DropReporter``), and the next pose is relayed as usual."""
 
 from __future__ import annotations
 
@@ -34,12 +37,15 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
         def relay() -> None:
             first = True
             while (pose := poses.recv()) is not None:
-                state_pub.put(core.on_pose(pose, time.time()))
+                with bus.faults.guard(bus.keys.state):  # counted and reported, never raised
+                    state_pub.put(core.on_pose(pose, time.time()))
                 if first:
                     log.info("first pose received; publishing %s", bus.keys.state)
                     first = False
 
-        worker = Worker("bridge-poses", relay, stop).start()
+        worker = Worker(
+            "bridge-poses", relay, stop, faults=bus.faults, fault_key=bus.keys.state
+        ).start()
         log.info("ready; waiting for %s", bus.keys.pose)
         while not stop.wait(0.2):
             drops.poll()

@@ -166,7 +166,13 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
         shell = PlannerShell(planner, bus)
         drops = DropReporter(bus, SERVICE, publisher=shell.log_pub)
         states = bus.subscribe_channel(bus.keys.state, State)
-        worker = Worker("planner-states", lambda: shell.consume(states), stop).start()
+        worker = Worker(
+            "planner-states",
+            lambda: shell.consume(states),
+            stop,
+            faults=bus.faults,
+            fault_key=bus.keys.plan,
+        ).start()
         log.info("ready; waiting for %s", bus.keys.state)
         while not stop.wait(shell.period):
             drops.poll()

@@ -1,4 +1,5 @@
-"""The common service shell's worker thread: crashes end the service, shutdown is quiet."""
+"""The common service shell's worker thread: crashes end the service, shutdown is quiet, a
+record of its own that fails validation is counted and the loop goes on."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import threading
 
 import pytest
 
+from shared.bus import FaultCounter
+from shared.messages import DriveCmd
 from shared.service_shell import Worker
 
 
@@ -39,3 +42,22 @@ def test_an_error_after_stop_is_only_logged_and_a_clean_end_is_silent() -> None:
     w.check()
     clean = Worker("c", lambda: None, threading.Event()).start()
     assert clean.join(5.0) is True
+
+
+def test_an_invalid_record_of_its_own_is_counted_and_the_loop_goes_on() -> None:
+    stop = threading.Event()
+    inputs = iter([1.0, float("nan"), 2.0, 99.0, 3.0])  # NaN and 99 m/s: invalid DriveCmds
+    sent: list[DriveCmd] = []
+    faults = FaultCounter()
+
+    def loop() -> None:  # re-entrant: the input lives outside
+        for speed in inputs:
+            sent.append(DriveCmd(stamp_s=1.0, speed_mps=speed, steering_rad=0.0))
+
+    w = Worker("w", loop, stop, faults=faults, fault_key="k/cmd").start()
+    assert w.join(5.0) is True  # ended normally once the input was exhausted
+    assert not stop.is_set()
+    assert [c.speed_mps for c in sent] == [1.0, 2.0, 3.0]
+    assert faults.snapshot() == {("k/cmd", "not_finite"): 1, ("k/cmd", "out_of_range"): 1}
+    assert w.restarts == 2
+    assert Worker("d", lambda: None, stop).fault_key == "worker/d"

@@ -1,0 +1,370 @@
+"""The simulator service never dies of its own output (issue 10).
+
+States beyond the message contract (slip 3.3 rad, yaw rate 80 rad/s, NaN) are fed to the
+service: no exception escapes, the fault is counted in ``bus.faults`` and reported on
+``events/log``, the car is reset where its state left the contract, and everything it
+publishes decodes (the decoder validates: a record that decodes is within contract).
+
+Most tests use an in-process fake bus whose publishers are the real ``TypedPublisher`` over a
+recording stand-in for ``zenoh.Publisher``; the last one runs the service's real-time loop on
+a real loopback Zenoh session and watches it from a second session.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import faulthandler
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+
+from services.launcher.supervisor import free_loopback_port
+from services.simulator import StepResult, service
+from services.simulator.service import (
+    STATE_FAULT_KEY,
+    SimulatorService,
+    occupancy_for,
+    state_fault,
+    wrap_pi,
+)
+from shared.bus import Bus, DropCounter, FaultCounter, Subscription, TypedPublisher
+from shared.config import RacestackConfig, load_config
+from shared.config.bus import BusSettings
+from shared.keys import Keys
+from shared.messages import Imu, LogEvent, Message, SimTruth, decode
+from shared.track import OccupancyGrid, Track, load_track
+
+H = 0.01  # the default integration step [s]
+
+
+@pytest.fixture(autouse=True)
+def _watchdog() -> Iterator[None]:
+    """End the run with a traceback dump if one test hangs (threads, Zenoh sessions)."""
+    faulthandler.dump_traceback_later(120.0, exit=True, file=sys.stderr)
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+
+
+class RecordingRaw:
+    """Stands in for ``zenoh.Publisher``: keeps every payload."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def put(self, data: bytes) -> None:
+        self.sent.append(data)
+
+
+class FakeBus:
+    """Just what ``SimulatorService`` uses of ``shared.bus.Bus``, without Zenoh."""
+
+    def __init__(self) -> None:
+        self.keys = Keys("car0")
+        self.drops = DropCounter()
+        self.faults = FaultCounter()
+        self.raws: dict[str, RecordingRaw] = {}
+
+    def publisher(self, key: str, msg_type: type[Message], **_: Any) -> TypedPublisher[Any]:
+        return TypedPublisher(self.raws.setdefault(key, RecordingRaw()), key, msg_type, self.faults)
+
+    def subscribe(
+        self,
+        key: str,
+        msg_type: type[Message],
+        callback: Callable[[Any], None] | None = None,
+        *,
+        queue_size: int = 0,
+    ) -> Subscription[Any]:
+        return Subscription(key, msg_type, self.drops, callback, queue_size)
+
+    def sent(self, key: str, msg_type: type[Message]) -> list[Any]:
+        """Every record published on `key`, decoded (and so validated)."""
+        raw = self.raws.get(key)
+        return [decode(b, msg_type) for b in raw.sent] if raw else []
+
+
+@pytest.fixture(scope="module")
+def cfg() -> RacestackConfig:
+    return load_config(None)
+
+
+@pytest.fixture(scope="module")
+def track(cfg: RacestackConfig) -> Track:
+    return load_track(cfg.track.source)
+
+
+@pytest.fixture(scope="module")
+def grid(track: Track) -> OccupancyGrid:
+    return occupancy_for(track)  # seconds on a loaded machine: once per module
+
+
+@pytest.fixture(autouse=True)
+def _one_grid(monkeypatch: pytest.MonkeyPatch, grid: OccupancyGrid) -> None:
+    monkeypatch.setattr(service, "occupancy_for", lambda _track: grid)
+
+
+@pytest.fixture
+def svc(cfg: RacestackConfig, track: Track) -> SimulatorService:
+    return SimulatorService(cfg, FakeBus(), track)  # type: ignore[arg-type]
+
+
+def _bus(svc: SimulatorService) -> FakeBus:
+    return svc.bus  # type: ignore[return-value]
+
+
+def _drive(svc: SimulatorService, steps: int, speed: float = 3.0) -> None:
+    """A few steps with a fresh command each, so the car is rolling."""
+    for _ in range(steps):
+        svc.sim.set_command(speed, 0.0, svc.sim.t_s)
+        res = svc.advance(H)
+        assert res is not None
+        svc.publish(res)
+
+
+def _bad_step(svc: SimulatorService, **state_changes: float) -> Callable[..., StepResult]:
+    """A stand-in for ``Simulator.step`` returning the true next step with a changed state."""
+    real = svc.sim.step
+
+    def step(command: Any = None, dt_s: float | None = None) -> StepResult:
+        res = real(command, dt_s)
+        return dataclasses.replace(res, state=dataclasses.replace(res.state, **state_changes))
+
+    return step
+
+
+def _truths(svc: SimulatorService) -> list[SimTruth]:
+    return _bus(svc).sent(svc.bus.keys.sim_truth, SimTruth)
+
+
+def _logs(svc: SimulatorService) -> list[LogEvent]:
+    return _bus(svc).sent(svc.bus.keys.events_log, LogEvent)
+
+
+def _assert_within_contract(t: SimTruth) -> None:
+    # decoding validated every field; the angles are also wrapped
+    assert -math.pi <= t.slip_rad <= math.pi and -math.pi <= t.yaw_rad <= math.pi
+    assert abs(t.yaw_rate_radps) <= 50.0 and abs(t.speed_mps) <= 50.0
+
+
+def test_state_fault_names_what_left_the_contract(svc: SimulatorService) -> None:
+    st = svc.sim.state
+    assert state_fault(st) is None
+    assert state_fault(dataclasses.replace(st, slip_rad=3.3, yaw_rad=1e5)) is None  # angles
+    assert state_fault(dataclasses.replace(st, yaw_rate_radps=80.0))[0] == "yaw_rate_out_of_range"
+    assert state_fault(dataclasses.replace(st, v_mps=-51.0))[0] == "speed_out_of_range"
+    assert state_fault(dataclasses.replace(st, delta_rad=1.2))[0] == "steering_out_of_range"
+    assert state_fault(dataclasses.replace(st, x_m=2e4))[0] == "position_out_of_range"
+    assert state_fault(dataclasses.replace(st, yaw_rate_radps=math.nan))[0] == "not_finite"
+    assert wrap_pi(3.3) == pytest.approx(3.3 - 2 * math.pi)
+    assert wrap_pi(-math.pi) == pytest.approx(-math.pi)
+
+
+def test_slip_beyond_pi_is_published_wrapped_and_counted(
+    svc: SimulatorService, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _drive(svc, 50)
+    monkeypatch.setattr(svc.sim, "step", _bad_step(svc, slip_rad=3.30))
+    n_truth = len(_truths(svc))
+    for _ in range(10):
+        res = svc.advance(H)
+        assert res is not None  # an angle: wrapped, the car goes on
+        svc.publish(res)
+    new = _truths(svc)[n_truth:]
+    assert new, "no sim/truth after the fault"
+    for t in new:
+        _assert_within_contract(t)
+        assert t.slip_rad == pytest.approx(3.30 - 2 * math.pi)
+    assert svc.faults.count(STATE_FAULT_KEY, "slip_not_canonical") == len(new)
+    assert svc.fault_resets == 0
+    assert svc.drops.poll()
+    report = _logs(svc)[-1]
+    assert report.level == "error" and report.text.startswith("own faults")
+    assert "slip_not_canonical" in report.text
+
+
+@pytest.mark.parametrize(
+    ("change", "reason"),
+    [
+        ({"yaw_rate_radps": 80.0}, "yaw_rate_out_of_range"),
+        ({"v_mps": 60.0}, "speed_out_of_range"),
+        ({"x_m": math.nan}, "not_finite"),
+    ],
+)
+def test_a_state_beyond_the_contract_resets_the_car_and_says_so(
+    svc: SimulatorService,
+    monkeypatch: pytest.MonkeyPatch,
+    change: dict[str, float],
+    reason: str,
+) -> None:
+    _drive(svc, 100)
+    assert svc.sim.state.v_mps > 1.0
+    real_step = svc.sim.step
+    with monkeypatch.context() as m:
+        m.setattr(svc.sim, "step", _bad_step(svc, **change))
+        assert svc.advance(H) is None  # no exception, the step is not published
+    assert svc.fault_resets == 1
+    assert svc.faults.count(STATE_FAULT_KEY, reason) == 1
+    st = svc.sim.state
+    assert st.v_mps == 0.0 and state_fault(st) is None  # at rest on the start line
+    said = _logs(svc)[-1]
+    assert said.level == "error" and "car reset to the start line" in said.text
+    assert svc.sim.step == real_step
+    n_truth = len(_truths(svc))
+    for _ in range(5):
+        res = svc.advance(H)
+        assert res is not None
+        svc.publish(res)
+    after = _truths(svc)[n_truth:]
+    assert after and all(abs(t.speed_mps) < 0.5 for t in after)
+    for t in after:
+        _assert_within_contract(t)
+    assert svc.drops.poll() and reason in _logs(svc)[-1].text
+
+
+def test_a_non_finite_state_from_the_core_resets_the_car(
+    svc: SimulatorService, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _drive(svc, 20)
+
+    def exploding_step(command: Any = None, dt_s: float | None = None) -> StepResult:
+        raise FloatingPointError("non-finite state after a step: (nan, ...)")
+
+    with monkeypatch.context() as m:
+        m.setattr(svc.sim, "step", exploding_step)
+        assert svc.advance(H) is None
+    assert svc.fault_resets == 1 and svc.faults.count(STATE_FAULT_KEY, "not_finite") == 1
+    assert "car reset to the start line" in _logs(svc)[-1].text
+    res = svc.advance(H)
+    assert res is not None and state_fault(res.state) is None
+
+
+def test_resets_are_said_at_most_once_per_interval(
+    svc: SimulatorService, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    now = [1000.0]
+    svc.clock = lambda: now[0]
+    monkeypatch.setattr(svc.sim, "step", _bad_step(svc, yaw_rate_radps=80.0))
+    n_logs = len(_logs(svc))
+    for _ in range(100):  # a state that fails on every step: one line, not a hundred
+        assert svc.advance(H) is None
+    said = _logs(svc)[n_logs:]
+    assert len(said) == 1 and svc.fault_resets == 100
+    now[0] += 1.5
+    assert svc.advance(H) is None
+    said = _logs(svc)[n_logs:]
+    assert len(said) == 2 and "99 more since the last report" in said[-1].text
+    assert svc.faults.count(STATE_FAULT_KEY) == 101
+
+
+def test_an_invalid_record_is_counted_not_sent_and_the_rest_goes_out(
+    svc: SimulatorService, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _drive(svc, 20)
+    real = svc.sim.step
+
+    def step(command: Any = None, dt_s: float | None = None) -> StepResult:
+        # an acceleration far beyond the contract's 500 m/s^2 (a non-physical artefact)
+        return dataclasses.replace(real(command, dt_s), accel_long_mps2=900.0)
+
+    monkeypatch.setattr(svc.sim, "step", step)
+    keys = svc.bus.keys
+    n_imu, n_truth = len(_bus(svc).sent(keys.imu, Imu)), len(_truths(svc))
+    for _ in range(10):
+        res = svc.advance(H)
+        assert res is not None
+        svc.publish(res)  # must not raise
+    assert len(_bus(svc).sent(keys.imu, Imu)) == n_imu  # every IMU sample refused
+    assert svc.faults.count(keys.imu, "out_of_range") == 10  # the IMU runs at 100 Hz
+    assert len(_truths(svc)) > n_truth  # the valid records still go out
+    assert svc.drops.poll()
+    text = _logs(svc)[-1].text
+    assert text.startswith("own faults: 10") and f"{keys.imu} out_of_range x10" in text
+
+
+def test_the_real_time_loop_survives_faults_on_zenoh(
+    cfg: RacestackConfig, track: Track, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The service's own loop on a real loopback session, watched from a second session."""
+    settings = BusSettings(car="faulttest", listen=[f"tcp/127.0.0.1:{free_loopback_port()}"])
+    lock = threading.Lock()
+    truths: list[SimTruth] = []
+    logs: list[LogEvent] = []
+    errors: list[BaseException] = []
+    stop = threading.Event()
+    with (
+        Bus(settings, "simulator", listen_default=True) as hub,
+        Bus(settings, "watcher") as watcher,
+    ):
+
+        def keep(store: list[Any]) -> Callable[[Any], None]:
+            def put(m: Any) -> None:
+                with lock:
+                    store.append(m)
+
+            return put
+
+        watcher.subscribe(watcher.keys.sim_truth, SimTruth, callback=keep(truths))
+        watcher.subscribe(watcher.keys.events_log, LogEvent, callback=keep(logs))
+        svc = SimulatorService(cfg, hub, track)
+        assert svc.pub_truth.wait_matching(10.0) and svc.pub_log.wait_matching(10.0)
+        real = svc.sim.step
+        faults = {"slip": 30, "yaw_rate": 3, "nan": 3}  # steps of each, in this order
+
+        def step(command: Any = None, dt_s: float | None = None) -> StepResult:
+            if svc.sim.t_s < 0.3:
+                return real(command, dt_s)
+            for kind, left in faults.items():
+                if left:
+                    faults[kind] -= 1
+                    if kind == "nan":
+                        raise FloatingPointError("non-finite state (injected)")
+                    res = real(command, dt_s)
+                    change = {"slip_rad": 3.3} if kind == "slip" else {"yaw_rate_radps": 80.0}
+                    return dataclasses.replace(res, state=dataclasses.replace(res.state, **change))
+            return real(command, dt_s)
+
+        monkeypatch.setattr(svc.sim, "step", step)
+
+        def body() -> None:
+            try:
+                svc.run(stop)
+            except BaseException as exc:  # must not happen
+                errors.append(exc)
+
+        loop = threading.Thread(target=body, name="sim-loop", daemon=True)
+        loop.start()
+        try:
+            deadline = time.monotonic() + 20.0
+            while time.monotonic() < deadline and (
+                any(faults.values()) or svc.sim.t_s < 1.5 or not loop.is_alive()
+            ):
+                if not loop.is_alive():
+                    break
+                time.sleep(0.05)
+        finally:
+            stop.set()
+            loop.join(10.0)
+        assert not loop.is_alive(), "the simulator loop did not stop"
+        assert not errors, f"an exception escaped the loop: {errors!r}"
+        assert not any(faults.values()), f"faults not all injected: {faults}"
+        time.sleep(0.3)  # the last messages in flight
+    assert svc.fault_resets == 6  # 3 yaw rate + 3 non-finite; the slip was only wrapped
+    assert svc.faults.count(STATE_FAULT_KEY, "slip_not_canonical") >= 5
+    with lock:
+        got_truths, got_logs = list(truths), list(logs)
+    assert got_truths, "no sim/truth arrived"
+    for t in got_truths:  # decoded by the watcher's bus: each is within contract
+        _assert_within_contract(t)
+    assert any(t.slip_rad == pytest.approx(3.3 - 2 * math.pi) for t in got_truths)
+    assert got_truths[-1].stamp_s > got_truths[0].stamp_s + 1.0  # kept publishing
+    texts = [m.text for m in got_logs if m.source == "simulator"]
+    assert any("car reset to the start line" in x for x in texts), texts
+    own = " ".join(x for x in texts if x.startswith("own faults"))
+    assert "slip_not_canonical" in own and "yaw_rate_out_of_range" in own, texts
