@@ -40,12 +40,12 @@ from typing import Any
 import numpy as np
 
 from services.launcher.supervisor import free_loopback_port, stop_process
-from services.vesc_driver.fake_vesc import FakeVesc
-from services.vesc_driver.protocol import CommandId
 from shared.bus import Bus
 from shared.config import load_config
 from shared.config.vesc import VescSettings
 from shared.messages import DriveCmd
+from shared.vesc.fake_pty import FakeVesc
+from shared.vesc.protocol import CommandId
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Wait for the service to come up [s].

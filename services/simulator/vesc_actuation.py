@@ -13,6 +13,10 @@ implied by the newest frames (inverse of the ``[vesc]`` conversions), or None wh
 or servo frame arrived since the previous call (the simulator then keeps the previous command
 until its own ``command_timeout_s`` brakes the car, as a VESC's firmware timeout would). A
 brake current or the fake firmware's command timeout gives speed 0.
+
+The protocol, the conversions and the fake VESC come from ``shared.vesc`` (the fake's
+public ``reply_values`` hook puts the wheel speed into the replies, ``motor_state()`` reads
+the applied commands); nothing here imports the vesc_driver service.
 """
 
 from __future__ import annotations
@@ -25,17 +29,15 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from services.vesc_driver.conversions import erpm_to_speed, servo_to_steering, speed_to_erpm
-from services.vesc_driver.fake_vesc import DEFAULT_FIRMWARE_TIMEOUT_S, FakeVesc
-from services.vesc_driver.protocol import encode_frame
-from services.vesc_driver.values import STATUS_TIMEOUT_BIT, encode_values_payload
 from shared.config import ConfigError
 from shared.config.vesc import VescSettings
+from shared.vesc.conversions import erpm_to_speed, servo_to_steering, speed_to_erpm
+from shared.vesc.fake import DEFAULT_FIRMWARE_TIMEOUT_S, FakeMotorState
+from shared.vesc.fake_pty import FakeVesc
+from shared.vesc.values import VescValues
 
 #: Largest |ERPM| a GET_VALUES reply can carry (int32).
 MAX_REPLY_ERPM = 2**31 - 1
-#: The fake's event log is cleared every this many updates (it is not used here).
-CLEAR_EVENTS_EVERY = 500
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,61 +55,6 @@ class VescCommand:
     speed_mps: float
     steering_rad: float
     braking: bool
-
-
-@dataclass(frozen=True, slots=True)
-class FakeMotorState:
-    """A consistent copy of the fake VESC's motor state (times on the fake's clock [s])."""
-
-    mode: str
-    last_erpm: float | None
-    last_erpm_s: float | None
-    last_servo: float | None
-    last_servo_s: float | None
-    last_brake_s: float | None
-    firmware_timed_out: bool
-    firmware_timeouts: int
-
-
-class SimFakeVesc(FakeVesc):
-    """A ``FakeVesc`` whose GET_VALUES replies carry the simulated wheel speed [ERPM]."""
-
-    def __init__(self, **kwargs: Any) -> None:
-        """Create the fake (see ``FakeVesc``); replies report 0 ERPM until ``set_wheel_erpm``."""
-        self.wheel_erpm = 0.0  # before the base class starts its thread
-        super().__init__(**kwargs)
-
-    def set_wheel_erpm(self, erpm: float) -> None:
-        """The motor speed [ERPM] the next replies report."""
-        with self._lock:
-            self.wheel_erpm = float(erpm)
-
-    def motor_state(self) -> FakeMotorState:
-        """A consistent copy of the motor state."""
-        with self._lock:
-            return FakeMotorState(
-                mode=self.mode,
-                last_erpm=self.last_erpm,
-                last_erpm_s=self.last_erpm_s,
-                last_servo=self.last_servo,
-                last_servo_s=self.last_servo_s,
-                last_brake_s=self.last_brake_s,
-                firmware_timed_out=self.firmware_timed_out,
-                firmware_timeouts=self.firmware_timeouts,
-            )
-
-    def _reply(self) -> bytes:
-        """The GET_VALUES reply: the base reply with ``erpm`` = the simulated wheel speed."""
-        with self._lock:
-            erpm = self.wheel_erpm
-            flags = (self.values.status_flags or 0) & ~STATUS_TIMEOUT_BIT
-            if self.firmware_timed_out:
-                flags |= STATUS_TIMEOUT_BIT
-            brake = self.last_brake_a if self.mode == "brake" else 0.0
-        values = replace(
-            self.values, erpm=erpm, avg_motor_current_a=-(brake or 0.0), status_flags=flags
-        )
-        return encode_frame(encode_values_payload(values, self.reply_length))
 
 
 class VescActuation:
@@ -135,7 +82,14 @@ class VescActuation:
         """
         self.link_path = Path(link_path)
         self.vesc = vesc
-        self.fake = SimFakeVesc(timeout_s=firmware_timeout_s, clock=clock)
+        #: motor speed [ERPM] the replies report (written here, read on the fake's thread)
+        self._wheel_erpm = 0.0
+        self.fake = FakeVesc(
+            timeout_s=firmware_timeout_s,
+            reply_values=self._reply_values,
+            max_events=0,  # the event log is not used here
+            clock=clock,
+        )
         try:
             self._point_link()
         except BaseException:
@@ -143,8 +97,12 @@ class VescActuation:
             raise
         self._last_key: tuple[Any, ...] = (None, None, None, 0)  # nothing received yet
         self._steering_rad = 0.0
-        self._updates = 0
         self.commands = 0  #: commands returned so far
+
+    def _reply_values(self, state: FakeMotorState, reply: VescValues) -> VescValues:
+        """The fake's ``reply_values`` hook: its GET_VALUES reply with ``erpm`` = the simulated
+        wheel speed [ERPM] instead of the commanded one."""
+        return replace(reply, erpm=self._wheel_erpm)
 
     def _point_link(self) -> None:
         p = self.link_path
@@ -173,12 +131,10 @@ class VescActuation:
         timeout) arrived since the previous call.
         """
         s = self.vesc
-        erpm = speed_to_erpm(wheel_speed_mps, s.speed_to_erpm_gain, s.speed_to_erpm_offset,
-                             s.speed_sign)
-        self.fake.set_wheel_erpm(max(-MAX_REPLY_ERPM, min(MAX_REPLY_ERPM, erpm)))
-        self._updates += 1
-        if self._updates % CLEAR_EVENTS_EVERY == 0:
-            self.fake.clear_events()
+        erpm = speed_to_erpm(
+            wheel_speed_mps, s.speed_to_erpm_gain, s.speed_to_erpm_offset, s.speed_sign
+        )
+        self._wheel_erpm = float(max(-MAX_REPLY_ERPM, min(MAX_REPLY_ERPM, erpm)))
         st = self.fake.motor_state()
         key = (st.last_erpm_s, st.last_servo_s, st.last_brake_s, st.firmware_timeouts)
         if key == self._last_key:
@@ -191,8 +147,9 @@ class VescActuation:
         braking = st.mode != "rpm" or st.firmware_timed_out or st.last_erpm is None
         speed = 0.0
         if not braking and st.last_erpm is not None:
-            speed = erpm_to_speed(st.last_erpm, s.speed_to_erpm_gain, s.speed_to_erpm_offset,
-                                  s.speed_sign)
+            speed = erpm_to_speed(
+                st.last_erpm, s.speed_to_erpm_gain, s.speed_to_erpm_offset, s.speed_sign
+            )
         self.commands += 1
         return VescCommand(speed_mps=speed, steering_rad=self._steering_rad, braking=braking)
 

@@ -1,13 +1,14 @@
 """The VESC motor-controller driver (core without bus code; the Zenoh shell wraps it).
 
-Modules: ``crc`` (CRC-16/XMODEM), ``protocol`` (command ids, framing, encoders), ``decoder``
-(streaming frame decoder), ``values`` (GET_VALUES replies), ``conversions`` (m/s, rad <->
-ERPM, servo), ``watchdog`` (command timeout), ``serial_link`` (reconnecting pyserial port),
-``driver`` (``VescDriver``), ``fake_vesc`` (a VESC on a pty for tests).
+The protocol is ``shared.vesc`` (CRC-16/XMODEM, framing and encoders, the streaming decoder,
+GET_VALUES replies, unit conversions, the fake VESC); its main names are re-exported here.
+The driver's own modules: ``conversions`` (``convert_command``: the safety policy of what is
+sent), ``watchdog`` (command timeout), ``serial_link`` (reconnecting pyserial port),
+``schedule`` (``TickScheduler``: when the serial loop ticks), ``driver`` (``VescDriver`` and
+its serial loop) and ``service`` (the Zenoh shell).
 """
 
 from services.vesc_driver.conversions import ActuatorCommand, convert_command
-from services.vesc_driver.decoder import DecoderCounters, Frame, FrameDecoder
 from services.vesc_driver.driver import (
     DriverCounters,
     OdometryRecord,
@@ -15,10 +16,18 @@ from services.vesc_driver.driver import (
     VescDriver,
     VescStateRecord,
 )
-from services.vesc_driver.protocol import CommandId, encode_frame
+from services.vesc_driver.schedule import TickReason, TickScheduler
 from services.vesc_driver.serial_link import LinkCounters, LinkState, SerialLink
-from services.vesc_driver.values import VescValues, parse_values
 from services.vesc_driver.watchdog import CommandWatchdog, WatchdogState
+from shared.vesc import (
+    CommandId,
+    DecoderCounters,
+    Frame,
+    FrameDecoder,
+    VescValues,
+    encode_frame,
+    parse_values,
+)
 
 __all__ = [
     "ActuatorCommand",
@@ -32,7 +41,9 @@ __all__ = [
     "LinkState",
     "OdometryRecord",
     "SerialLink",
+    "TickReason",
     "TickResult",
+    "TickScheduler",
     "VescDriver",
     "VescStateRecord",
     "VescValues",

@@ -1,4 +1,5 @@
-"""Pure conversions between car commands (m/s, rad) and VESC units (ERPM, servo position).
+"""What the driver sends for a car command: the formulas of ``shared.vesc.conversions`` plus
+the driver's safety policy (NaN/inf -> brake, out of range -> clamp or brake).
 
 See ``shared.config.vesc`` for the formulas and the meaning of ``speed_sign``. Nothing here
 reads a clock or does I/O.
@@ -10,36 +11,7 @@ import math
 from dataclasses import dataclass
 
 from shared.config.vesc import VescSettings
-
-
-def speed_to_erpm(speed_mps: float, gain: float, offset: float, sign: int = 1) -> float:
-    """Motor speed [ERPM] for a car speed [m/s]: ``gain * (sign * v) + offset`` (unclamped)."""
-    return gain * (sign * speed_mps) + offset
-
-
-def erpm_to_speed(erpm: float, gain: float, offset: float, sign: int = 1) -> float:
-    """Car speed [m/s] from a motor speed [ERPM]: ``sign * (erpm - offset) / gain``."""
-    return sign * (erpm - offset) / gain
-
-
-def steering_to_servo(steering_rad: float, gain: float, offset: float) -> float:
-    """Servo position [0, 1] for a steering angle [rad]: ``gain * delta + offset`` (unclamped)."""
-    return gain * steering_rad + offset
-
-
-def servo_to_steering(servo_pos: float, gain: float, offset: float) -> float:
-    """Steering angle [rad] for a servo position [0, 1] (inverse of ``steering_to_servo``)."""
-    return (servo_pos - offset) / gain
-
-
-def yaw_rate_from(speed_mps: float, steering_rad: float, wheelbase_m: float) -> float:
-    """Kinematic yaw rate [rad/s]: ``v * tan(delta) / wheelbase``."""
-    return speed_mps * math.tan(steering_rad) / wheelbase_m
-
-
-def clamp(value: float, lo: float, hi: float) -> float:
-    """``value`` limited to [lo, hi]."""
-    return lo if value < lo else hi if value > hi else value
+from shared.vesc.conversions import clamp, speed_to_erpm, steering_to_servo
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,11 +1,19 @@
 """The VESC driver core: commands in, frames out, GET_VALUES replies -> state and odometry.
 
-``VescDriver`` owns a ``SerialLink``, a ``FrameDecoder`` and a ``CommandWatchdog``. It has no
-bus code: the Zenoh shell calls ``on_command`` for each drive command and either calls
-``tick`` itself or runs ``run(stop_event, on_tick)`` in a thread and publishes what
-``on_tick`` receives. ``on_command`` may be called from another thread than ``tick``/``run``.
+``VescDriver`` owns a ``SerialLink``, a ``FrameDecoder`` (``shared.vesc``) and a
+``CommandWatchdog``. It has no bus code: the Zenoh shell calls ``on_command`` for each drive
+command and either calls ``tick`` itself or runs the serial loop ``loop(stop_event, on_tick)``
+(``run`` = ``loop`` then close the link) in a thread and publishes what ``on_tick`` receives.
+``on_command`` may be called from another thread than ``tick``/``loop``; ``wake()`` makes a
+sleeping loop look again at once (e.g. after setting its stop event).
 
-Per tick (``command_rate_hz``), frames are written in this order:
+The loop is the only scheduling loop of the VESC driver (the service runs it too): it ticks
+when ``services.vesc_driver.schedule.TickScheduler`` says so (fixed rate, watchdog expiry,
+and with ``[vesc] write_on_command`` right after a new command) and between ticks sleeps in
+``select`` on the serial port and a wake pipe, decoding GET_VALUES replies as they arrive
+(their stamps are the decode time).
+
+Per tick, frames are written in this order:
 
 * commands fresh (younger than ``command_timeout_s``): SET_RPM (or SET_CURRENT_BRAKE when the
   command was NaN/inf, or out of range with ``invalid_command = "brake"``), SET_SERVO_POS,
@@ -20,39 +28,35 @@ releases the motor.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import select
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 
-from services.vesc_driver.conversions import (
-    ActuatorCommand,
-    convert_command,
-    erpm_to_speed,
-    servo_to_steering,
-    yaw_rate_from,
-)
-from services.vesc_driver.decoder import FrameDecoder
-from services.vesc_driver.protocol import (
+from services.vesc_driver.conversions import ActuatorCommand, convert_command
+from services.vesc_driver.schedule import WAKE_SLACK_S, TickScheduler
+from services.vesc_driver.serial_link import LinkState, SerialLink
+from services.vesc_driver.watchdog import CommandWatchdog, WatchdogState
+from shared.config.vesc import VescSettings
+from shared.vesc.conversions import erpm_to_speed, servo_to_steering, yaw_rate_from
+from shared.vesc.decoder import FrameDecoder
+from shared.vesc.protocol import (
     encode_alive,
     encode_get_values,
     encode_set_current_brake,
     encode_set_rpm,
     encode_set_servo_pos,
 )
-from services.vesc_driver.serial_link import LinkState, SerialLink
-from services.vesc_driver.values import VescValues, is_values_reply, parse_values
-from services.vesc_driver.watchdog import CommandWatchdog, WatchdogState
-from shared.config.vesc import VescSettings
+from shared.vesc.values import VescValues, is_values_reply, parse_values
 
 #: Link status strings, as in ``shared.messages.VESC_STATUSES``.
 STATUS_OK = "ok"
 STATUS_FAULT = "fault"
 STATUS_STALE = "stale"
 STATUS_DISCONNECTED = "disconnected"
-
-#: Slack [s] added to timed waits so a wake-up is not a hair early.
-_WAKE_SLACK_S = 0.0005
 
 
 @dataclass(frozen=True, slots=True)
@@ -181,6 +185,11 @@ class VescDriver:
         self.counters = DriverCounters()
         self._lock = threading.Lock()
         self._command: ActuatorCommand | None = None
+        #: a command arrived that no tick has written yet (guarded by _lock)
+        self._command_pending = False
+        # the loop's wake pipe (read end, write end) while ``loop`` runs, guarded by _wake_lock
+        self._wake_lock = threading.Lock()
+        self._wake_fds: tuple[int, int] | None = None
         self._last_servo_sent: float | None = None
         self._last_values_s: float | None = None
         self._last_values: VescValues | None = None
@@ -200,7 +209,8 @@ class VescDriver:
         """Accept a drive command (speed [m/s], steering [rad]) received at ``now`` [s].
 
         The command is converted at once (NaN/inf -> brake; out of range -> clamp or brake)
-        and sent on the next ticks while it is fresh. Thread-safe; never raises.
+        and sent on the next ticks while it is fresh; with ``write_on_command`` a running
+        ``loop`` is woken to write it at once. Thread-safe; never blocks, never raises.
         """
         cmd = convert_command(speed_mps, steering_rad, self.settings)
         with self._lock:
@@ -210,7 +220,10 @@ class VescDriver:
             if cmd.out_of_range:
                 self.counters.out_of_range_commands += 1
             self._command = cmd
+            self._command_pending = True
             self.watchdog.feed(now)
+        if self.settings.write_on_command:
+            self.wake()
         return cmd
 
     # -- input -------------------------------------------------------------------------------
@@ -286,6 +299,7 @@ class VescDriver:
         with self._lock:
             wd = self.watchdog.state(now)
             cmd = self._command
+            self._command_pending = False  # this tick writes the newest command
         frames: list[bytes] = []
         braking = True
         if wd is WatchdogState.FRESH and cmd is not None:
@@ -336,49 +350,88 @@ class VescDriver:
         )
 
     # -- loop --------------------------------------------------------------------------------
+    def loop(
+        self,
+        stop_event: threading.Event,
+        on_tick: Callable[[TickResult], None] | None = None,
+    ) -> None:
+        """The serial loop: tick as ``TickScheduler`` says until ``stop_event`` is set.
+
+        Ticks at ``command_rate_hz``, right when the watchdog expires, and - with
+        ``write_on_command`` - right after a new command (at most one such extra tick per
+        ``MIN_COMMAND_WRITE_GAP_S``). Between ticks it sleeps in ``select`` on the port and
+        a wake pipe (``on_command``, ``wake``), decoding replies as they arrive.
+        ``on_tick`` receives every ``TickResult`` (from this thread; keep it short). An
+        exception from ``on_tick`` ends the loop and propagates. The link stays open (see
+        ``run``); call ``wake()`` after setting ``stop_event`` for a prompt return.
+        """
+        s = self.settings
+        sched = TickScheduler(
+            1.0 / s.command_rate_hz, self._clock(), write_on_command=s.write_on_command
+        )
+        wake_r, wake_w = os.pipe()
+        os.set_blocking(wake_r, False)
+        os.set_blocking(wake_w, False)
+        with self._wake_lock:
+            self._wake_fds = (wake_r, wake_w)
+        try:
+            while not stop_event.is_set():
+                now = self._clock()
+                deadline = self.watchdog.deadline()
+                pending = self._command_pending
+                reason = sched.due(now, deadline, pending)
+                if reason:
+                    result = self.tick(now)
+                    sched.ticked(now, reason)
+                    if on_tick is not None:
+                        on_tick(result)
+                    continue
+                wake = sched.wake_at(deadline, pending)
+                self._wait(wake_r, max(0.0, wake - now) + WAKE_SLACK_S)
+        finally:
+            with self._wake_lock:
+                self._wake_fds = None
+            for fd in (wake_r, wake_w):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+
     def run(
         self,
         stop_event: threading.Event,
         on_tick: Callable[[TickResult], None] | None = None,
     ) -> None:
-        """Tick at ``command_rate_hz`` until ``stop_event`` is set, then close the link.
-
-        Between ticks it decodes replies as they arrive, and it runs an extra tick right
-        when the watchdog expires, so the brake follows the last command by
-        ``command_timeout_s`` plus scheduling delay rather than up to a period later.
-        ``on_tick`` receives every ``TickResult`` (from this thread; keep it short). An
-        exception from ``on_tick`` ends the loop and propagates (the link is closed; with no
-        more frames the VESC's firmware timeout then releases the motor).
-        """
-        period = 1.0 / self.settings.command_rate_hz
-        next_tick = self._clock()
-        last_tick = float("-inf")
+        """``loop`` until ``stop_event`` is set, then close the link (also on an exception:
+        with no more frames the VESC's firmware timeout then releases the motor)."""
         try:
-            while not stop_event.is_set():
-                now = self._clock()
-                deadline = self.watchdog.deadline()
-                expiry_due = deadline is not None and last_tick < deadline <= now
-                if now >= next_tick or expiry_due:
-                    result = self.tick(now)
-                    last_tick = now
-                    if now >= next_tick:
-                        next_tick += period
-                        if next_tick <= now:  # fell behind: skip, do not burst
-                            next_tick = now + period
-                    if on_tick is not None:
-                        on_tick(result)
-                    continue
-                wake = next_tick
-                if deadline is not None and last_tick < deadline < wake:
-                    wake = deadline
-                timeout = max(0.0, wake - now) + _WAKE_SLACK_S
-                if self.link.connected:
-                    if self.link.wait_readable(timeout):
-                        self.poll_input(self._clock())
-                else:
-                    stop_event.wait(timeout)
+            self.loop(stop_event, on_tick)
         finally:
             self.link.close()
+
+    def wake(self) -> None:
+        """Make a sleeping ``loop`` look again now (no-op when no loop runs). Never blocks."""
+        with self._wake_lock:
+            if self._wake_fds is not None:
+                with contextlib.suppress(OSError):  # a full pipe already wakes the loop
+                    os.write(self._wake_fds[1], b"\x00")
+
+    def _wait(self, wake_r: int, timeout_s: float) -> None:
+        """Sleep up to ``timeout_s`` [s] on the port and the wake pipe; decode what arrived."""
+        fds = [wake_r]
+        port_fd = self.link.fileno()
+        if port_fd is not None:
+            fds.append(port_fd)
+        try:
+            ready, _, _ = select.select(fds, [], [], timeout_s)
+        except (OSError, ValueError):  # the port vanished under us: let the read report it
+            ready = [port_fd] if port_fd is not None else []
+            if port_fd is None:
+                time.sleep(min(timeout_s, 0.01))
+        if wake_r in ready:
+            with contextlib.suppress(OSError):
+                while os.read(wake_r, 4096):
+                    pass
+        if port_fd is not None and port_fd in ready:
+            self.poll_input(self._clock())
 
     def diagnostics(self) -> dict[str, int]:
         """All counters in one flat dict: ``driver.*``, ``decoder.*``, ``link.*``, watchdog."""

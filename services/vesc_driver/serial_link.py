@@ -239,6 +239,16 @@ class SerialLink:
             return True  # let the next read() find and report the error
         return bool(ready)
 
+    def fileno(self) -> int | None:
+        """The open port's file descriptor (to ``select`` on), or None when down or unknown."""
+        if self._state is not LinkState.CONNECTED or self._ser is None:
+            return None
+        try:
+            fd = int(self._ser.fileno())
+        except Exception:  # a port closed under us: the next read reports it
+            return None
+        return fd if fd >= 0 else None
+
     def close(self) -> None:
         """Close the port for good (``read``/``write`` then do nothing)."""
         self._close_port()

@@ -7,25 +7,28 @@ serial port is ``[vesc] port``; with no port present the service keeps running a
 Threads:
 
 * Zenoh's callback thread: each valid ``DriveCmd`` goes to ``VescDriver.on_command`` (a
-  lock held for microseconds) and, with ``[vesc] write_on_command``, wakes the driver thread
-  through a pipe. It never blocks.
-* the driver thread (``VescService.run_driver``): the serial loop. It ticks the driver at
-  ``command_rate_hz`` (motor frames, ALIVE, GET_VALUES), runs an extra tick when the command
-  watchdog expires (so the brake follows the last command by ``command_timeout_s`` plus
-  scheduling delay), and - with ``write_on_command`` - an extra tick right after a new
-  command (at most one such extra write per ``MIN_COMMAND_WRITE_GAP_S``), so a command
-  reaches the wire without waiting up to one period. Between ticks it sleeps in ``select``
-  on the serial port and the wake pipe, decoding GET_VALUES replies as they arrive (their
-  stamps are the decode time). It does no bus I/O: tick results and events go to a bounded
-  out-box.
+  lock held for microseconds; with ``[vesc] write_on_command`` it also wakes the serial
+  loop through its pipe). It never blocks.
+* the driver thread (``VescService.run_driver``): the driver's own serial loop
+  (``VescDriver.loop``, scheduled by ``services.vesc_driver.schedule.TickScheduler``). It
+  ticks the driver at ``command_rate_hz`` (motor frames, ALIVE, GET_VALUES), runs an extra
+  tick when the command watchdog expires (so the brake follows the last command by
+  ``command_timeout_s`` plus scheduling delay), and - with ``write_on_command`` - an extra
+  tick right after a new command (at most one such extra write per
+  ``MIN_COMMAND_WRITE_GAP_S``), so a command reaches the wire without waiting up to one
+  period. Between ticks it sleeps in ``select`` on the serial port and the wake pipe,
+  decoding GET_VALUES replies as they arrive (their stamps are the decode time). The
+  service's ``on_tick`` does no bus I/O: tick results and events go to a bounded out-box.
 * the main thread (``VescService.serve``): publishes the out-box - ``vesc/state`` and
   ``vehicle/odom`` for every reply (at the tick after its decode, at most one period later,
   stamped with the decode time in wall-clock seconds), ``events/log`` for port lost / back,
   watchdog braking / commands resumed, invalid commands, invalid bus payloads (the bus's
   ``DropCounter`` grew: ``shared.bus.DropReporter``) and reply values the messages reject.
   Every kind of event is rate-limited to one per ``[vesc] event_interval_s`` (suppressed ones
-  are counted into the next). While no reply arrives it publishes a status-only
-  ``vesc/state`` (all values None) every ``STATUS_ONLY_INTERVAL_S``.
+  are counted into the next; ``shared.ratelimit.RateLimiter``). While no reply arrives it
+  publishes a status-only ``vesc/state`` (all values None) every ``STATUS_ONLY_INTERVAL_S``.
+  A record of its own that still fails validation is not sent but counted in
+  ``bus.faults`` and reported the same way (``DropReporter``); the loop goes on.
 
 On SIGINT/SIGTERM the driver thread writes one brake frame, closes the port, and the main
 thread then closes the Zenoh session.
@@ -35,11 +38,8 @@ from __future__ import annotations
 
 import argparse
 import collections
-import contextlib
 import logging
 import math
-import os
-import select
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -47,24 +47,21 @@ from dataclasses import dataclass
 from typing import Any
 
 from services.vesc_driver.driver import OdometryRecord, TickResult, VescDriver, VescStateRecord
-from services.vesc_driver.protocol import encode_set_current_brake
-from services.vesc_driver.serial_link import LinkState, SerialLink, default_serial_factory
-from services.vesc_driver.values import VescValues
+from services.vesc_driver.serial_link import LinkState, SerialLink
 from services.vesc_driver.watchdog import WatchdogState
 from shared.bus import Bus, DropOldestQueue, DropReporter
 from shared.config import RacestackConfig
 from shared.config.vesc import VescSettings
 from shared.messages import DriveCmd, LogEvent, MessageError, Odom, VescState
-from shared.messages.codec import Spec, field_specs
+from shared.messages.codec import FieldInfo
+from shared.ratelimit import RateLimiter
 from shared.service_shell import run_service
+from shared.vesc.protocol import encode_set_current_brake
+from shared.vesc.values import VescValues
 
 log = logging.getLogger(__name__)
 SERVICE = "vesc_driver"
 
-#: Shortest interval between two extra writes triggered by new commands [s] (<= 200 Hz).
-MIN_COMMAND_WRITE_GAP_S = 0.005
-#: Slack added to timed waits so a wake-up is not a hair early [s].
-WAKE_SLACK_S = 0.0005
 #: Longest a serial write may block [s].
 WRITE_TIMEOUT_S = 0.05
 #: Period of a status-only ``vesc/state`` while no GET_VALUES reply arrives [s].
@@ -78,13 +75,11 @@ OUTBOX_SIZE = 512
 #: Wait for the driver thread to end after stop [s].
 JOIN_TIMEOUT_S = 3.0
 
-#: VescState fields filled from ``VescValues`` (same names), with their validation specs.
-_STATE_FIELDS: tuple[tuple[str, Spec], ...] = tuple(
-    (name, spec)
-    for name, spec, _ in field_specs(VescState)
-    if name not in ("stamp_s", "seq", "status")
+#: VescState fields filled from ``VescValues`` (same names), with their field rules
+#: (each value is checked with ``VescState.check_field``).
+_STATE_FIELDS: tuple[tuple[str, FieldInfo], ...] = tuple(
+    (f.name, f) for f in VescState.fields_info() if f.name not in ("stamp_s", "seq", "status")
 )
-_ODOM_SPECS: dict[str, Spec] = {name: spec for name, spec, _ in field_specs(Odom)}
 
 
 # --------------------------------------------------------------------------- conversions
@@ -104,11 +99,11 @@ def vesc_state_message(
     """
     kwargs: dict[str, Any] = {}
     skipped: list[str] = []
-    for name, spec in _STATE_FIELDS:
+    for name, _ in _STATE_FIELDS:
         value = getattr(values, name, None) if values is not None else None
         if value is not None:
             try:
-                spec.check(f"VescState.{name}", value)
+                value = VescState.check_field(name, value)
             except MessageError:
                 skipped.append(name)
                 value = None
@@ -126,14 +121,14 @@ def odom_message(rec: OdometryRecord, stamp_s: float) -> tuple[Odom | None, tupl
     bad: list[str] = []
     for name, value in (("speed_mps", rec.speed_mps), ("steering_rad", rec.steering_rad)):
         try:
-            _ODOM_SPECS[name].check(f"Odom.{name}", value)
+            Odom.check_field(name, value)
         except MessageError:
             bad.append(name)
     if bad:
         return None, tuple(bad)
     yaw_rate: float | None = rec.yaw_rate_radps
     try:
-        _ODOM_SPECS["yaw_rate_radps"].check("Odom.yaw_rate_radps", yaw_rate)
+        yaw_rate = Odom.check_field("yaw_rate_radps", yaw_rate)
     except MessageError:
         bad.append("yaw_rate_radps")
         yaw_rate = None
@@ -150,28 +145,27 @@ def odom_message(rec: OdometryRecord, stamp_s: float) -> tuple[Odom | None, tupl
 class EpisodeLimiter:
     """Rate limit of start/end event pairs (port lost/back, braking/resumed).
 
-    A start is reported when ``interval_s`` [s] passed since the last reported start, else
-    it is suppressed and counted; its end is reported only if its start was, so the last
-    reported line always tells the current state.
+    A start is reported when ``interval_s`` [s] passed since the last reported start (a
+    ``RateLimiter``), else it is suppressed and counted; its end is reported only if its
+    start was, so the last reported line always tells the current state.
     """
 
     def __init__(self, interval_s: float) -> None:
-        self.interval_s = interval_s
-        self._last_s = -math.inf
+        """Create the limiter; ``interval_s`` [s] between two reported starts."""
+        self._limit = RateLimiter(interval_s)
         self._open_reported = False
-        self.suppressed = 0  #: starts suppressed since the last reported one
+
+    @property
+    def suppressed(self) -> int:
+        """Starts suppressed since the last reported one."""
+        return self._limit.suppressed
 
     def start(self, now: float) -> int | None:
         """A start at ``now`` [s]: the number of suppressed starts before it if it is to be
         reported (they are then cleared), or None when this one is suppressed."""
-        if now - self._last_s >= self.interval_s:
-            self._last_s = now
-            self._open_reported = True
-            n, self.suppressed = self.suppressed, 0
-            return n
-        self._open_reported = False
-        self.suppressed += 1
-        return None
+        allowed, suppressed = self._limit.allow(now)
+        self._open_reported = allowed
+        return suppressed if allowed else None
 
     def end(self) -> bool:
         """The matching end: True if it is to be reported."""
@@ -183,14 +177,14 @@ class GrowthLimiter:
     """Reports a growing total at most every ``interval_s`` [s] (the first growth at once)."""
 
     def __init__(self, interval_s: float) -> None:
-        self.interval_s = interval_s
-        self._last_s = -math.inf
+        """Create the limiter; ``interval_s`` [s] between two reports (a ``RateLimiter``)."""
+        self._limit = RateLimiter(interval_s)
         self.reported = 0  #: the total of the last report
 
     def check(self, total: int, now: float) -> bool:
         """True when ``total`` grew since the last report and the interval has passed."""
-        if total > self.reported and now - self._last_s >= self.interval_s:
-            self._last_s = now
+        if total > self.reported and self._limit.ready(now):
+            self._limit.allow(now)
             self.reported = total
             return True
         return False
@@ -237,8 +231,6 @@ class VescService:
         self.bus = bus
         self._clock = clock
         self._wall = wall_clock
-        self._port: Any | None = None  # the port object the link has open (for select)
-        self._factory = default_serial_factory(WRITE_TIMEOUT_S)
         link = SerialLink(
             settings.port,
             settings.baudrate,
@@ -246,15 +238,9 @@ class VescService:
             backoff_max_s=settings.reconnect_backoff_max_s,
             write_timeout_s=WRITE_TIMEOUT_S,
             clock=clock,
-            serial_factory=self._open_port,
         )
         self.driver = VescDriver(settings, link, clock=clock)
         self.outbox: DropOldestQueue[_Item] = DropOldestQueue(OUTBOX_SIZE)
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
-        self._closed = False
-        self._new_command = threading.Event()
         self.commands_received = 0
         self.driver_error: BaseException | None = None
         #: Reply fields / odometry the messages rejected: field name -> count.
@@ -281,94 +267,20 @@ class VescService:
 
     # -- Zenoh thread --------------------------------------------------------------------
     def on_drive_cmd(self, cmd: DriveCmd) -> None:
-        """Hand a valid drive command to the driver; never blocks."""
+        """Hand a valid drive command to the driver (which wakes its loop); never blocks."""
         self.driver.on_command(cmd.speed_mps, cmd.steering_rad, self._clock())
         self.commands_received += 1
-        if self.settings.write_on_command:
-            self._new_command.set()
-            self._wake()
-
-    def _wake(self) -> None:
-        if self._closed:
-            return
-        with contextlib.suppress(OSError):  # a full pipe already wakes the loop
-            os.write(self._wake_w, b"\x00")
-
-    # -- serial port ---------------------------------------------------------------------
-    def _open_port(self, port: str, baudrate: int) -> Any:
-        ser = self._factory(port, baudrate)
-        self._port = ser
-        return ser
 
     # -- driver thread -------------------------------------------------------------------
     def run_driver(self, stop: threading.Event) -> None:
-        """The serial loop (see the module docstring) until ``stop`` is set; then brake once
-        and close the port. Exceptions are kept in ``driver_error``."""
+        """The driver's serial loop (see the module docstring) until ``stop`` is set; then
+        brake once and close the port. Exceptions are kept in ``driver_error``."""
         try:
-            self._loop(stop)
+            self.driver.loop(stop, self._after_tick)
         except BaseException as exc:  # reported by the main thread
             self.driver_error = exc
         finally:
             self._brake_and_close()
-
-    def _loop(self, stop: threading.Event) -> None:
-        drv = self.driver
-        period = 1.0 / self.settings.command_rate_hz
-        immediate = self.settings.write_on_command
-        next_tick = drv.now()
-        last_tick = -math.inf
-        last_cmd_write = -math.inf
-        while not stop.is_set():
-            now = drv.now()
-            deadline = drv.watchdog.deadline()
-            expiry_due = deadline is not None and last_tick < deadline <= now
-            scheduled = now >= next_tick
-            cmd_due = (
-                immediate
-                and self._new_command.is_set()
-                and now >= last_cmd_write + MIN_COMMAND_WRITE_GAP_S
-            )
-            if scheduled or expiry_due or cmd_due:
-                self._new_command.clear()  # this tick sends the newest command
-                if cmd_due and not scheduled:
-                    last_cmd_write = now
-                result = drv.tick(now)
-                last_tick = now
-                if scheduled:
-                    next_tick += period
-                    if next_tick <= now:  # fell behind: skip, do not burst
-                        next_tick = now + period
-                self._after_tick(result)
-                continue
-            wake = next_tick
-            if deadline is not None and last_tick < deadline < wake:
-                wake = deadline
-            if immediate and self._new_command.is_set():
-                wake = min(wake, last_cmd_write + MIN_COMMAND_WRITE_GAP_S)
-            self._wait(max(0.0, wake - now) + WAKE_SLACK_S)
-
-    def _wait(self, timeout_s: float) -> None:
-        """Sleep up to ``timeout_s`` [s] on the port and the wake pipe; decode what arrived."""
-        fds = [self._wake_r]
-        port_fd: int | None = None
-        if self.driver.link.connected and self._port is not None:
-            try:
-                port_fd = int(self._port.fileno())
-                fds.append(port_fd)
-            except Exception:  # a port closed under us: the next read reports it
-                port_fd = None
-        try:
-            ready, _, _ = select.select(fds, [], [], timeout_s)
-        except (OSError, ValueError):
-            ready = [port_fd] if port_fd is not None else []
-            if port_fd is None:
-                time.sleep(min(timeout_s, 0.01))
-        if self._wake_r in ready:
-            with contextlib.suppress(OSError):
-                while os.read(self._wake_r, 4096):
-                    pass
-        if port_fd is not None and port_fd in ready:
-            self.driver.poll_input(self.driver.now())
 
     def _after_tick(self, result: TickResult) -> None:
         """Transitions of the link and the watchdog -> events; replies -> the out-box."""
@@ -459,7 +371,7 @@ class VescService:
                     break
         finally:
             stop.set()
-            self._wake()
+            self.driver.wake()
             thread.join(JOIN_TIMEOUT_S)
             if thread.is_alive():
                 log.error("the serial loop did not stop within %.1f s", JOIN_TIMEOUT_S)
@@ -474,20 +386,25 @@ class VescService:
         return max(0.0, self._wall() - (self._clock() - mono_s))
 
     def _publish(self, item: _Item) -> None:
+        """Publish one out-box item; a record that fails validation anyway (the values are
+        checked field by field first) is counted in ``bus.faults``, never raised."""
         if isinstance(item, _Say):
             self.say(item.level, item.text)
             return
+        faults = self.bus.faults
         if item.state is not None:
-            stamp = self._stamp(item.state.stamp_s)
-            msg, skipped = vesc_state_message(item.state.values, item.status, stamp)
-            self.rejected_fields.update(skipped)
-            self.pub_state.put(msg)
-            self._last_state_pub_s = self._clock()
+            with faults.guard(self.pub_state.key):
+                stamp = self._stamp(item.state.stamp_s)
+                msg, skipped = vesc_state_message(item.state.values, item.status, stamp)
+                self.rejected_fields.update(skipped)
+                self.pub_state.put(msg)
+                self._last_state_pub_s = self._clock()
         if item.odometry is not None:
-            odom, bad = odom_message(item.odometry, self._stamp(item.odometry.stamp_s))
-            self.rejected_fields.update(f"odom.{b}" for b in bad)
-            if odom is not None:
-                self.pub_odom.put(odom)
+            with faults.guard(self.pub_odom.key):
+                odom, bad = odom_message(item.odometry, self._stamp(item.odometry.stamp_s))
+                self.rejected_fields.update(f"odom.{b}" for b in bad)
+                if odom is not None:
+                    self.pub_odom.put(odom)
 
     def say(self, level: str, text: str) -> None:
         """Log locally and publish a ``LogEvent`` on ``events/log``."""
@@ -540,17 +457,14 @@ class VescService:
         out = self.driver.diagnostics()
         out["service.commands_received"] = self.commands_received
         out["service.bus_drops"] = self.bus.drops.total
+        out["service.own_faults"] = self.bus.faults.total
         out["service.outbox_dropped"] = self.outbox.dropped
         out["service.rejected_fields"] = sum(self.rejected_fields.values())
         return out
 
     def close(self) -> None:
-        """Close the wake pipe (call after the bus session is closed) and the port."""
-        self._closed = True
+        """Close the port (call after the bus session is closed)."""
         self.driver.close()
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
 
 
 def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -98,3 +101,19 @@ def test_step_sizes() -> None:
             sim.step(Command(2.0, 0.0), bad)
     with pytest.raises(ValueError):
         sim.reset(Pose2D(math.nan, 0.0, 0.0))
+
+
+def test_simulator_does_not_import_the_vesc_driver_service() -> None:
+    """The fake-VESC actuation uses ``shared.vesc`` only: no service imports another."""
+    code = (
+        "import sys\n"
+        "import services.simulator.service, services.simulator.vesc_actuation\n"
+        "bad = sorted(m for m in sys.modules if m.startswith('services.vesc_driver'))\n"
+        "print(','.join(bad))\n"
+    )
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == ""

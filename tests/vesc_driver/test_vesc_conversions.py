@@ -8,16 +8,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.vesc_driver.conversions import (
-    convert_command,
+from services.vesc_driver.conversions import convert_command
+from shared.config.vesc import VescSettings
+from shared.vesc.conversions import (
     erpm_to_speed,
     servo_to_steering,
     speed_to_erpm,
     steering_to_servo,
     yaw_rate_from,
 )
-from services.vesc_driver.protocol import encode_set_rpm, encode_set_servo_pos
-from shared.config.vesc import VescSettings
+from shared.vesc.protocol import encode_set_rpm, encode_set_servo_pos
 
 DEFAULTS = VescSettings()
 

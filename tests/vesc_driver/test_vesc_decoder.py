@@ -8,8 +8,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from services.vesc_driver.decoder import DEFAULT_MAX_PAYLOAD, Frame, FrameDecoder
-from services.vesc_driver.protocol import (
+from shared.vesc.decoder import DEFAULT_MAX_PAYLOAD, Frame, FrameDecoder
+from shared.vesc.protocol import (
     START_LONG,
     START_SHORT,
     CommandId,

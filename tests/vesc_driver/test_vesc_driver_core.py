@@ -7,14 +7,14 @@ from typing import Any
 
 import pytest
 
-from services.vesc_driver.decoder import FrameDecoder
 from services.vesc_driver.driver import TickResult, VescDriver
-from services.vesc_driver.fake_vesc import DEFAULT_VALUES
-from services.vesc_driver.protocol import CommandId, decode_command_value, encode_frame
 from services.vesc_driver.serial_link import LinkState, SerialLink
-from services.vesc_driver.values import encode_values_payload
 from services.vesc_driver.watchdog import WatchdogState
 from shared.config.vesc import VescSettings
+from shared.vesc.decoder import FrameDecoder
+from shared.vesc.fake import DEFAULT_VALUES
+from shared.vesc.protocol import CommandId, decode_command_value, encode_frame
+from shared.vesc.values import encode_values_payload
 
 
 def make_driver(clock: Any, factory: Any, **overrides: Any) -> VescDriver:

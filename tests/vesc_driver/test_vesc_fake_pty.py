@@ -15,17 +15,17 @@ import pytest
 import serial
 
 from services.vesc_driver.driver import TickResult, VescDriver
-from services.vesc_driver.fake_vesc import FakeVesc, pty_available
-from services.vesc_driver.protocol import (
+from services.vesc_driver.serial_link import LinkState
+from shared.config.vesc import VescSettings
+from shared.vesc.fake_pty import FakeVesc, pty_available
+from shared.vesc.protocol import (
     CommandId,
     encode_frame,
     encode_get_values,
     encode_set_rpm,
     encode_set_servo_pos,
 )
-from services.vesc_driver.serial_link import LinkState
-from services.vesc_driver.values import parse_values
-from shared.config.vesc import VescSettings
+from shared.vesc.values import parse_values
 
 JOIN_TIMEOUT_S = 3.0
 
@@ -83,7 +83,7 @@ def fake() -> Iterator[FakeVesc]:
         yield f
     finally:
         f.close(JOIN_TIMEOUT_S)
-        assert not f._thread.is_alive(), "fake VESC thread did not stop"
+        assert not f.running, "fake VESC thread did not stop"
         assert f.thread_error is None
 
 
@@ -227,3 +227,29 @@ def test_garbage_on_the_line_is_counted_and_ignored(fake: FakeVesc, running: Run
     assert running.driver.counters.malformed_values == 0
     odo = [r.odometry for r in running.results if r.odometry is not None]
     assert odo[-1].speed_mps == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("write_on_command", [True, False])
+def test_the_driver_loop_writes_a_new_command_at_once_only_with_write_on_command(
+    fake: FakeVesc, write_on_command: bool
+) -> None:
+    """The one serial loop (``VescDriver.loop``, also the service's): with a 1 Hz fixed
+    rate a command reaches the wire long before the next fixed tick only when
+    ``write_on_command`` is on; ``wake()`` ends a sleeping loop at once."""
+    r = Running(settings_for(fake.path, command_rate_hz=1.0, write_on_command=write_on_command))
+    try:
+        assert fake.wait_for(lambda f: f.values_requests >= 1, 2.0)  # the first fixed tick
+        time.sleep(0.05)
+        t_cmd = r.driver.now()
+        r.driver.on_command(1.0, 0.0, t_cmd)
+        got = fake.wait_for(lambda f: f.last_erpm == 4614.0, 0.3)
+        assert got is write_on_command
+        if got:
+            first = fake.events(CommandId.SET_RPM)[0]
+            assert first.t_s - t_cmd < 0.1
+    finally:
+        t_stop = time.monotonic()
+        r.stop.set()
+        r.driver.wake()
+        r.halt()
+    assert time.monotonic() - t_stop < 0.5  # not the rest of a 1 s period

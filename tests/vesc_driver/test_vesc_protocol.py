@@ -5,9 +5,11 @@ from __future__ import annotations
 import struct
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from services.vesc_driver.crc import CRC16_CHECK, crc16_xmodem
-from services.vesc_driver.protocol import (
+from shared.vesc.crc import CRC16_CHECK, crc16_xmodem
+from shared.vesc.protocol import (
     END_BYTE,
     MAX_LONG_PAYLOAD,
     MAX_SHORT_PAYLOAD,
@@ -106,3 +108,21 @@ def test_bad_payloads_raise_value_error() -> None:
         encode_set_rpm(2.0**31)
     with pytest.raises(ValueError, match="wire range"):
         encode_set_servo_pos(40.0)  # 40000 does not fit an int16
+
+
+def _crc16_xmodem_bitwise(data: bytes) -> int:
+    """Reference CRC-16/XMODEM, bit by bit (poly 0x1021, init 0, no reflection, no xor)."""
+    crc = 0
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
+            crc &= 0xFFFF
+    return crc
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=300))
+def test_crc_matches_a_bitwise_reference(data: bytes) -> None:
+    assert crc16_xmodem(data) == _crc16_xmodem_bitwise(data)
+    assert crc16_xmodem(bytearray(data)) == crc16_xmodem(memoryview(data))

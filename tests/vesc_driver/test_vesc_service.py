@@ -26,8 +26,6 @@ import pytest
 
 from services.launcher.supervisor import free_loopback_port
 from services.vesc_driver.driver import OdometryRecord
-from services.vesc_driver.fake_vesc import DEFAULT_VALUES, FakeEvent, FakeVesc, pty_available
-from services.vesc_driver.protocol import CommandId
 from services.vesc_driver.service import (
     _STATE_FIELDS,
     EpisodeLimiter,
@@ -35,10 +33,13 @@ from services.vesc_driver.service import (
     odom_message,
     vesc_state_message,
 )
-from services.vesc_driver.values import VescValues
 from shared.bus import Bus, Subscription, TypedPublisher
 from shared.config import load_config
 from shared.messages import DriveCmd, LogEvent, Odom, Pose, VescState
+from shared.vesc.fake import DEFAULT_VALUES, FakeEvent
+from shared.vesc.fake_pty import FakeVesc, pty_available
+from shared.vesc.protocol import CommandId
+from shared.vesc.values import VescValues
 
 ROOT = Path(__file__).resolve().parents[2]
 SERVICE = "vesc_driver"

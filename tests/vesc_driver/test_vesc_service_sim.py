@@ -23,12 +23,12 @@ from pydantic import ValidationError
 from services.launcher.supervisor import free_loopback_port, stop_process
 from services.simulator.vesc_actuation import VescActuation
 from services.vesc_driver.driver import VescDriver
-from services.vesc_driver.fake_vesc import pty_available
 from shared.bus import Bus
 from shared.config import ConfigError, load_config
 from shared.config.simulator import SimulatorSettings
 from shared.config.vesc import VescSettings
 from shared.messages import DriveCmd, Odom, SimTruth
+from shared.vesc.fake_pty import pty_available
 
 ROOT = Path(__file__).resolve().parents[2]
 START_TIMEOUT_S = 25.0

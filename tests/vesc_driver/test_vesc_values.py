@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.vesc_driver.fake_vesc import DEFAULT_VALUES
-from services.vesc_driver.protocol import CommandId
-from services.vesc_driver.values import (
+from shared.vesc.fake import DEFAULT_VALUES
+from shared.vesc.protocol import CommandId
+from shared.vesc.values import (
     FULL_VALUES_PAYLOAD_LEN,
     MIN_VALUES_PAYLOAD_LEN,
     VALUES_LAYOUT,

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-from services.vesc_driver.crc import crc16_xmodem
-from services.vesc_driver.protocol import (
+from shared.vesc.crc import crc16_xmodem
+from shared.vesc.protocol import (
     END_BYTE,
     LONG_HEADER_LEN,
     MAX_LONG_PAYLOAD,

@@ -21,7 +21,7 @@ import math
 import struct
 from dataclasses import dataclass, fields
 
-from services.vesc_driver.protocol import CommandId
+from shared.vesc.protocol import CommandId
 
 #: Bit of ``status_flags``: the firmware's command timeout has released the motor.
 STATUS_TIMEOUT_BIT = 0x01
