@@ -5,6 +5,7 @@ racestack demo                   the main job (same as ``up``)
 racestack run SERVICE            one service alone (router, simulator, planner, ...)
 racestack bench ...              the paper's lap-time experiment in one process
 racestack mintime ...            the minimum-time lap of the simulator's car (the limit)
+racestack tune ...               search a method's parameters for the fastest clean laps
 racestack report RUN             the lap table and figures of a recorded run
 racestack laps                   the planner against its own kinematic model
 """
@@ -36,7 +37,7 @@ def _cmd_laps(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     track = load_track(args.track or cfg.track.source)
     settings = cfg.planner.model_copy(update={"method": args.method or cfg.planner.method})
-    planner = make_planner(track, settings, cfg.curvature)
+    planner = make_planner(track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
     F = discretise(kinematic_bicycle(settings.wheelbase_m), settings.dt_s, settings.integrator)
     x = np.array([*track.xy[0], track.heading_rad[0], 0.0])
     L, progress, s_last, t, lap_start, laps = track.length_m, 0.0, 0.0, 0.0, 0.0, 0
@@ -88,6 +89,12 @@ def _cmd_mintime(args: argparse.Namespace) -> int:
     from services.planner.mintime_cli import main as mintime_main
 
     return mintime_main(args=args)
+
+
+def _cmd_tune(args: argparse.Namespace) -> int:
+    from services.tune.cli import main as tune_main
+
+    return tune_main(args=args)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -142,6 +149,12 @@ def build_parser() -> argparse.ArgumentParser:
     mintime = sub.add_parser("mintime", help="minimum-time lap of the simulator's car (OCP)")
     mintime_parser(mintime)
     mintime.set_defaults(handler=_cmd_mintime)
+
+    from services.tune.cli import build_parser as tune_parser
+
+    tune = sub.add_parser("tune", help="search a method's parameters for the fastest clean laps")
+    tune_parser(tune)
+    tune.set_defaults(handler=_cmd_tune)
 
     report = sub.add_parser("report", help="lap table and figures of a recorded run (.rrd)")
     report.add_argument("rest", nargs=argparse.REMAINDER, help="RUN.rrd or run folder, options")

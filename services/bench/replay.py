@@ -1,46 +1,35 @@
 """The minimum-time lap driven in the simulator: does the car really do the optimal time?
 
-``replay_min_time(lap, track, sim_settings)`` feeds the optimal line and its speeds forward
-into a fresh ``services.simulator.Simulator`` with a small feedback, and times flying laps
-with the bench's ``LapTimer`` (arc length across the start line; the footprint against the
-boundaries). Every ``control_dt_s`` the car's CoG is projected onto the optimal line
-(arc length ``s``, distance ``e`` right +); with ``p(s)`` the plan at ``s``, ``s_a = s + v
-T_speed`` and the speed error ``dv = v - v_p(s)``::
+``replay_min_time(lap, track, sim_settings)`` drives the optimal lap in a fresh
+``services.simulator.Simulator`` with the stack's tracker (``services.planner.tracker``:
+the lap's own steering and acceleration demand fed forward over the delays, a small
+feedback on the lateral and heading error, an acceleration cut when the car drifts to the
+outside of a bend) and times flying laps with the bench's ``LapTimer`` (arc length across
+the start line; the footprint against the boundaries). The raceline planner drives the
+same lap with the same tracker at its own 20 Hz; here the tracker runs every
+``control_dt_s`` (5 ms) on the true CoG pose with no compute delay, so the replay measures
+what the plan is worth with as little control loss as the car's delays allow.
 
-    steering = delta_p(s + v T_steer) + k_e e - k_psi wrap(yaw - yaw_p(s))
-    a_cmd    = a_p(s_a) - k_v dv - k_out max(0, e_out),  e_out = e tanh(kappa_p(s) / 0.1)
-    speed    = v_p(s_a) + dv + a_cmd / k_loop
-
-``T_steer`` (45 ms) looks ahead over the steering's delays (10 ms actuation + 20 ms steering
-+ the servo's 10 ms time constant + half a control period), ``T_speed`` over the 10 ms
-actuation delay. The simulator's speed loop is proportional, ``a = k_loop (v_cmd - v)``
-(``speed_gain_accel_per_s`` 4.755 / ``speed_gain_brake_per_s`` 19.02 by the sign of
-``a_cmd``), so the speed command asks it for ``a_cmd``: the planned acceleration demand
-``a_p`` (the OCP's input), a speed correction, and a cut when the car drifts towards the
-outside of the bend (``e_out > 0``). That cut matters: at the optimum the front axle is at
-its friction ellipse through most corners (and the steering at its end stop in the
-tightest), so more steering buys no lateral force there; only giving up longitudinal force
-does (without it the car slid off the track 3 times a lap on map416). The car starts on
-the plan (pose, speed, steering) about ``start_fraction`` of a lap before the start line,
-at the straightest node nearby (the reset puts slip and yaw rate at their kinematic
-values), so an out lap settles it before timing starts.
+The delays come from the simulator's settings: the speed loop acts ``actuation_delay_s``
+(10 ms) after the pose, the wheels ``actuation_delay_s + steering_delay_s +
+steering_time_constant_s`` (40 ms) after it. The car starts on the plan (pose, speed,
+steering) about ``start_fraction`` of a lap before the start line, at the straightest node
+nearby (the reset puts slip and yaw rate at their kinematic values), so an out lap settles
+it before timing starts.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from services.planner.mintime import MinTimeLap
 from services.planner.mintime_model import DELTA
+from services.planner.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.simulator import Command, LapTimer, Simulator
 from shared.config.simulator import SimulatorSettings
 from shared.track import Track
-
-#: Path curvature [1/m] above which a bend's outside is fully defined (tanh scale).
-OUTWARD_KAPPA_1PM = 0.1
 
 
 @dataclass(frozen=True)
@@ -49,25 +38,14 @@ class ReplayOptions:
 
     Attributes:
         laps: flying laps to time.
-        control_dt_s: period of the feedback [s].
-        steering_lead_s: the steering plan is read this far ahead [s].
-        speed_lead_s: the speed plan is read this far ahead [s].
-        k_lateral_radpm: steering per metre of lateral error [rad/m].
-        k_heading: steering per radian of yaw error [-].
-        k_speed_per_s: acceleration per m/s of speed error [1/s].
-        k_outward_per_s2: acceleration cut per metre of lateral error towards the outside of
-            the line's bend [1/s^2].
+        control_dt_s: period of the tracker [s].
+        gains: the tracker's feedback (``services.planner.tracker.TrackerGains``).
         start_fraction: the car starts this share of a lap before the start line.
     """
 
     laps: int = 2
     control_dt_s: float = 0.005
-    steering_lead_s: float = 0.045
-    speed_lead_s: float = 0.01
-    k_lateral_radpm: float = 0.5
-    k_heading: float = 1.2
-    k_speed_per_s: float = 4.755
-    k_outward_per_s2: float = 40.0
+    gains: TrackerGains = field(default_factory=TrackerGains)
     start_fraction: float = 0.5
 
 
@@ -95,29 +73,17 @@ class ReplayResult:
         return float(np.mean(self.lap_times_s)) / self.ocp_lap_time_s - 1.0
 
 
-class _Plan:
-    """The optimal lap as periodic functions of the driven line's arc length."""
-
-    def __init__(self, lap: MinTimeLap) -> None:
-        xy = np.column_stack([lap.x_m, lap.y_m])
-        self.line = Track("min-time line", xy, np.ones(len(xy)), np.ones(len(xy)))
-        L = self.line.length_m
-        self.length = L
-        self.s = np.append(self.line.s_m, L)
-        yaw = np.asarray(lap.yaw_rad, dtype=float)
-        closing = yaw[-1] + math.remainder(yaw[0] - yaw[-1], math.tau)
-        self.turns = closing - yaw[0]
-        self.yaw = np.append(yaw, closing)
-        self.delta = np.append(lap.states[:, DELTA], lap.states[0, DELTA])
-        self.v = np.append(lap.v_mps, lap.v_mps[0])
-        self.a = np.append(lap.inputs[:, 1], lap.inputs[0, 1])
-        self.kappa = np.append(lap.kappa_radpm, lap.kappa_radpm[0])
-
-    def at(self, table: np.ndarray, s: float) -> float:
-        return float(np.interp(s % self.length, self.s, table))
-
-    def yaw_at(self, s: float) -> float:
-        return float(np.interp(s % self.length, self.s, self.yaw))
+def replay_timing(settings: SimulatorSettings, control_dt_s: float) -> TrackerTiming:
+    """The tracker's timing in `settings`' simulator, driven every `control_dt_s` [s] on the
+    true pose with no compute delay (module docstring)."""
+    veh = settings.vehicle
+    return TrackerTiming(
+        period_s=control_dt_s,
+        speed_delay_s=settings.actuation_delay_s,
+        steering_delay_s=settings.actuation_delay_s
+        + settings.steering_delay_s
+        + veh.steering_time_constant_s,
+    )
 
 
 def replay_min_time(
@@ -130,7 +96,8 @@ def replay_min_time(
     o = opts or ReplayOptions()
     settings = sim_settings or SimulatorSettings()
     veh = settings.vehicle
-    plan = _Plan(lap)
+    plan = ReferenceLap.from_min_time(lap)
+    tracker = Tracker.for_vehicle(plan, replay_timing(settings, o.control_dt_s), o.gains, veh)
     sim = Simulator(settings)
     timer = LapTimer(track, width_m=veh.width_m, length_m=veh.length_m)
     n = len(lap.v_mps)
@@ -144,32 +111,17 @@ def replay_min_time(
     )
     st = sim.state
     timer.update(sim.t_s, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
-    s_hint = float(plan.line.s_m[k0])
+    tracker.reset(float(plan.s_m[k0]))
     laps: list[float] = []
     off = off_out = 0
     max_e = 0.0
     t_limit = (o.laps + 2) * 3.0 * lap.lap_time_s
     while len(laps) < o.laps and sim.t_s < t_limit:
         st = sim.state
-        s_l, e_l = plan.line.project_near(st.x_m, st.y_m, s_hint)
-        s_hint = s_l
+        cmd = tracker.command(st.x_m, st.y_m, st.yaw_rad)
         if timer.timing:
-            max_e = max(max_e, abs(e_l))
-        yaw_err = math.remainder(st.yaw_rad - plan.yaw_at(s_l), math.tau)
-        v = max(st.v_mps, 0.0)
-        steer = (
-            plan.at(plan.delta, s_l + v * o.steering_lead_s)
-            + o.k_lateral_radpm * e_l
-            - o.k_heading * yaw_err
-        )
-        s_v = s_l + v * o.speed_lead_s
-        a_p = plan.at(plan.a, s_v)
-        error = st.v_mps - plan.at(plan.v, s_l)
-        outward = max(0.0, e_l * math.tanh(plan.at(plan.kappa, s_l) / OUTWARD_KAPPA_1PM))
-        a_cmd = a_p - o.k_speed_per_s * error - o.k_outward_per_s2 * outward
-        gain = veh.speed_gain_accel_per_s if a_cmd >= 0.0 else veh.speed_gain_brake_per_s
-        speed = plan.at(plan.v, s_v) + error + a_cmd / gain
-        out = sim.step(Command(speed, steer), o.control_dt_s)
+            max_e = max(max_e, abs(cmd.e_m))
+        out = sim.step(Command(cmd.speed_mps, cmd.steering_rad), o.control_dt_s)
         s = out.state
         for ev in timer.update(out.t_s, s.x_m, s.y_m, s.yaw_rad, s.v_mps):
             if ev.kind == "off_track" and timer.timing:

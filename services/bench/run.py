@@ -8,6 +8,10 @@ Methods:
 - ``mpcc-tuned``: MPCC with its progress-speed reference swept (v_l ref = 1.1 x v_p ref) over
   a few laps each; then the full run at the fastest value whose laps were all completed with
   no off-track event. The chosen value and the sweep are recorded in results.json;
+- ``cimpcc-line``: CiMPCC's cost contouring the car's minimum-time line, its velocity pulls
+  set per stage from the minimum-time speed profile (``[planner.cimpcc_line]``, issue #12);
+- ``cimpcc-tuned``: CiMPCC with ``[planner.cimpcc]`` and ``[curvature]`` of ``--tuned FILE``
+  (``racestack tune``'s best.toml); without it, the configuration's own (said on stderr);
 - ``raceline``: the RDM+OTG-like baseline (``[planner.raceline]``): a minimum-curvature line
   with a speed profile, tracked by pure pursuit (``services/planner/raceline.py``).
 
@@ -37,11 +41,12 @@ from services.planner.mintime import MinTimeError, MinTimeSettings
 from services.planner.mintime_store import min_time_lap
 from services.planner.planner import Planner
 from services.planner.raceline import RacelinePlanner
+from services.tune.bench_column import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.planner import MethodWeights
 from shared.track import Track, TrackError, load_track
 
-METHODS = ("cimpcc", "mpcc", "mpcc-tuned", "raceline")
+METHODS = ("cimpcc", "mpcc", "mpcc-tuned", "raceline", "cimpcc-line", "cimpcc-tuned")
 #: Progress-speed references [m/s] tried by mpcc-tuned (v_l ref = 1.1 x v_p ref).
 DEFAULT_SWEEP_MPS = (2.2, 2.4, 2.6, 2.8, 3.0, 3.2, 3.4)
 
@@ -184,6 +189,7 @@ def run_bench(
     sweep_laps: int,
     figures: bool = True,
     reference: bool = True,
+    tuned: TunedCimpcc | None = None,
 ) -> dict:
     """Run every method and write results.json and the figures; returns the document.
 
@@ -197,7 +203,11 @@ def run_bench(
         timings["min-time reference"] = time.perf_counter() - t_start
     base = Planner(track, cfg.planner, cfg.curvature)
     # built first: a track that allows no raceline is an error before anything races
-    baseline = RacelinePlanner(track, cfg.planner, cfg.curvature) if "raceline" in methods else None
+    baseline = (
+        RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+        if "raceline" in methods
+        else None
+    )
     runs: list[MethodRun] = []
     for name in methods:
         t0 = time.perf_counter()
@@ -207,6 +217,13 @@ def run_bench(
         if baseline is not None and name == "raceline":
             planner = baseline
             extra = {"profile_lap_time_s": round(planner.raceline.lap_time_s, 3)}
+        elif name == "cimpcc-tuned":
+            tuned = tuned or load_tuned(None, cfg)
+            planner, extra = tuned_planner(track, cfg, tuned, base), tuned.extra()
+        elif name == "cimpcc-line":  # its own problem: the path is structural
+            planner = Planner(track, cfg.planner, cfg.curvature, method=name,
+                              vehicle=cfg.simulator.vehicle)
+            extra = {"profile_lap_time_s": round(planner.reference.speed.lap_time_s, 3)}
         else:
             planner = Planner(
                 track,
@@ -283,6 +300,8 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
         help="mpcc-tuned: progress-speed references to try [m/s]",
     )
     ap.add_argument("--sweep-laps", type=int, default=3)
+    ap.add_argument("--tuned", help="cimpcc-tuned: a tuned configuration (racestack tune's "
+                    "best.toml); default: the configuration's own [planner.cimpcc]")
     ap.add_argument("--no-figures", action="store_true")
     ap.add_argument(
         "--no-reference",
@@ -314,9 +333,12 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
         load_track(track_spec)  # a wrong track fails here, before anything runs
         out = Path(args.out or Path("runs") / time.strftime("bench-%Y%m%d-%H%M%S"))
         check_out_dir(out)
+        tuned = load_tuned(args.tuned, cfg) if "cimpcc-tuned" in methods else None
     except (BenchError, ConfigError, TrackError) as exc:
         print(f"racestack bench: error: {exc}", file=sys.stderr)
         return 2
+    if tuned is not None:
+        print(tuned.describe(), file=sys.stderr)
     opts = LoopOptions(
         laps=args.laps, delay_mode=args.delay, compute_delay_s=args.compute_delay_ms / 1e3
     )
@@ -332,6 +354,7 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
             args.sweep_laps,
             figures=not args.no_figures,
             reference=not args.no_reference,
+            tuned=tuned,
         )
     except TrackError as exc:  # e.g. no raceline on this track (raised before any race)
         print(f"racestack bench: error: {exc}", file=sys.stderr)

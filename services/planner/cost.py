@@ -6,12 +6,14 @@ Per stage k with model input ``u_k = [v_l, delta, v_p]`` and velocity pair ``v_k
     - gamma v_p,k Ts                                progress reward
     + ||u_k - u_{k-1}||^2_R1                        input rate (stage 0: times w_du0)
     + ||u_k - u_ref||^2_R2                          input reference (MPCC's speed pull)
-    + (1 - beta_k) ||v_k - v_low||^2_R3             CiMPCC: pull to safe speeds
-    + beta_k ||v_k - v_up||^2_R3                    CiMPCC: pull to aggressive speeds
+    + (1 - beta_k) ||v_k - v_low,k||^2_R3           CiMPCC: pull to safe speeds
+    + beta_k ||v_k - v_up,k||^2_R3                  CiMPCC: pull to aggressive speeds
     + rho_1 slack_k + rho_2 slack_k^2               soft track limits
 
-MPCC is R3 = 0; CiMPCC is R2 = diag(0, 10, 0) with R3 = diag(40, 40) (paper section IV).
-All weights come from the parameter vector (see ``problem.ParamLayout``).
+MPCC is R3 = 0; CiMPCC is R2 = diag(0, 10, 0) with R3 = diag(40, 40) (paper section IV)
+and the same ``v_low``, ``v_up`` at every stage; ``cimpcc-line`` has beta_k = 1 and
+``v_up,k`` = the minimum-time profile's speed at stage k.
+All weights and references come from the parameter vector (see ``problem.ParamLayout``).
 """
 
 from __future__ import annotations
@@ -34,11 +36,17 @@ def stage_cost(
     u_prev: ca.SX,
     slack: ca.SX,
     beta: ca.SX,
+    v_low: ca.SX,
+    v_up: ca.SX,
     par: dict[str, ca.SX],
     dt_s: float,
     first_stage: bool,
 ) -> ca.SX:
-    """Cost of one stage (see the module docstring); `par` holds the named parameter blocks."""
+    """Cost of one stage (see the module docstring).
+
+    `beta`, `v_low`, `v_up` ([v_l, v_p] [m/s]) are the stage's; `par` holds the named
+    parameter blocks of the weights.
+    """
     q = par["q"]
     cost = q[0] * e_con**2 + q[1] * e_lag**2
     cost -= par["gamma"] * u[U.V_P] * dt_s
@@ -46,8 +54,8 @@ def stage_cost(
     cost += par["w_du0"] * du if first_stage else du
     cost += _quad(u - par["u_ref"], par["r2"])
     v = ca.vertcat(u[U.V_L], u[U.V_P])
-    cost += (1 - beta) * _quad(v - par["v_low"], par["r3"])
-    cost += beta * _quad(v - par["v_up"], par["r3"])
+    cost += (1 - beta) * _quad(v - v_low, par["r3"])
+    cost += beta * _quad(v - v_up, par["r3"])
     cost += par["slack_w"][0] * slack + par["slack_w"][1] * slack**2
     return cost
 

@@ -5,14 +5,25 @@ from __future__ import annotations
 from services.planner.planner import Planner
 from services.planner.raceline import RacelinePlanner
 from shared.config.planner import CurvatureSettings, PlannerSettings
+from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track
 
 
 def make_planner(
-    track: Track, settings: PlannerSettings, curvature: CurvatureSettings | None = None
+    track: Track,
+    settings: PlannerSettings,
+    curvature: CurvatureSettings | None = None,
+    vehicle: DynamicVehicleParams | None = None,
 ) -> Planner | RacelinePlanner:
-    """``settings.method``: "cimpcc" or "mpcc" (one MPC problem) or "raceline" (the
-    minimum-curvature line tracked by pure pursuit); both have ``step``/``prepare``/``reset``."""
+    """``settings.method``: "cimpcc" or "mpcc" (one MPC problem on the centreline),
+    "cimpcc-line" (the same problem builder on the minimum-time line of `vehicle`) or
+    "raceline" (the baseline: a line tracked by a pursuit controller); all have
+    ``step``/``prepare``/``reset``.
+
+    Args:
+        vehicle: the simulated (or real) car the minimum-time lap is solved for
+            (``cimpcc-line``, ``raceline``); None: the F1TENTH gym's, the simulator's default.
+    """
     if settings.method == "raceline":
-        return RacelinePlanner(track, settings, curvature)
-    return Planner(track, settings, curvature)
+        return RacelinePlanner(track, settings, curvature, vehicle=vehicle)
+    return Planner(track, settings, curvature, vehicle=vehicle)

@@ -6,6 +6,15 @@ the car's position, or per predicted stage), solves the problem built once by
 previous plan shifted by one step; ``max_consecutive_failures`` failures in a row give a
 braking command (speed 0). Commands are always finite and inside the input bounds.
 
+Methods: ``cimpcc`` and ``mpcc`` contour the track's centreline (the paper). ``cimpcc-line``
+(issue #12) contours the car's minimum-time line with the same problem builder: its
+velocity pulls (paper eq. 11) take beta = 1 and ``v_up,k`` = the minimum-time profile's
+speed command at each stage's predicted progress; its model is the kinematic bicycle with
+the car's steady-state tyre slip (``model.SlipModel``); and it plans from the pose predicted
+``lead_pose_s`` ahead with the acting command (the actuation and steering delays). The car
+is then projected twice: onto the track (the result's ``s_m`` and ``e_con_m``, the off-track
+cap and the recovery rule, as for every method) and onto the line (the problem's progress).
+
 Latency: only what needs the new pose runs between the pose and the command (projection,
 aligning the warm start, the solve). ``Planner.prepare()`` does the rest of the next tick's
 work ahead of time (the previous plan shifted and extrapolated, per-stage beta); a service
@@ -23,11 +32,15 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from services.planner.model import NU, S, U
+from services.planner.mintime import MinTimeSettings
+from services.planner.mintime_store import min_time_lap
+from services.planner.model import NU, S, SlipModel, U, discretise
 from services.planner.problem import UA, XA, OcpProblem, build_problem
 from services.planner.recovery import Recovery, RecoveryCommand
+from services.planner.reference import ReferencePath, centreline_path, min_time_path
 from services.planner.solver import SolverHandle, make_solver
 from shared.config.planner import CurvatureSettings, MethodWeights, PlannerSettings
+from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
 from shared.curvature import CurvatureProfile, track_profile
 from shared.track import Track
 
@@ -43,6 +56,64 @@ STILL_SPEED_MPS = 0.1
 PROJECTION_WINDOW_M = 5.0
 #: Speed [m/s] of the rollout that seeds the very first solve.
 INITIAL_GUESS_SPEED_MPS = 1.0
+#: The method that contours the minimum-time line (issue #12).
+CIMPCC_LINE = "cimpcc-line"
+#: Half-width [m] of the search on the line around the hint from the track's progress.
+LINE_HINT_WINDOW_M = 2.0
+
+
+def problem_settings(settings: PlannerSettings, method: str) -> PlannerSettings:
+    """The settings that fix the structure of `method`'s problem: ``cimpcc-line`` has its
+    own N (``[planner.cimpcc_line] horizon_steps``); the others use `settings`."""
+    if method != CIMPCC_LINE:
+        return settings
+    return settings.model_copy(update={"horizon_steps": settings.cimpcc_line.horizon_steps})
+
+
+def min_time_reference(
+    track: Track,
+    settings: PlannerSettings,
+    vehicle: DynamicVehicleParams | None = None,
+    cache_dir: str | None = None,
+) -> ReferencePath:
+    """The ``cimpcc-line`` reference: the minimum-time line of `vehicle` on `track`.
+
+    The lap (``mintime_store.min_time_lap``: solved once, then read from the cache in
+    `cache_dir`, default the solver cache's) is solved for the car (`vehicle`, default the
+    F1TENTH gym's) with its friction ``mu`` times ``grip_fraction``, its steering within
+    the planner's bounds (``settings.bounds.delta_rad``: a line the planner cannot steer
+    is no reference), top speed ``v_max_mps`` and footprint margin ``line_margin_m`` (all
+    ``settings.cimpcc_line``); then ``reference.min_time_path`` with the speed loop's lead
+    times (default: ``1 / speed_gain_accel_per_s`` and ``1 / speed_gain_brake_per_s`` of
+    the car).
+
+    Raises:
+        MinTimeError: no minimum-time lap exists on `track` for this car.
+    """
+    car = vehicle or F1TENTH_GYM
+    line = settings.cimpcc_line
+    lo, hi = settings.bounds.delta_rad
+    update = {
+        "steering_min_rad": max(car.steering_min_rad, lo),
+        "steering_max_rad": min(car.steering_max_rad, hi),
+    }
+    if line.grip_fraction != 1.0:
+        update["mu"] = car.mu * line.grip_fraction
+    lap = min_time_lap(
+        track,
+        car.model_copy(update=update),
+        MinTimeSettings(v_max_mps=line.v_max_mps, margin_m=line.line_margin_m),
+        cache_dir=cache_dir,
+    )
+    accel_lead = line.accel_lead_s
+    brake_lead = line.brake_lead_s
+    return min_time_path(
+        track,
+        lap,
+        car.lr_m,
+        1.0 / car.speed_gain_accel_per_s if accel_lead is None else accel_lead,
+        1.0 / car.speed_gain_brake_per_s if brake_lead is None else brake_lead,
+    )
 
 
 @dataclass
@@ -54,10 +125,13 @@ class _Prepared:
             stage extrapolated with the model, slack zeroed (progress and heading not yet
             aligned with the next pose).
         beta: (N,) per-stage beta at the shifted progress, or None (beta at the car only).
+        v_ref: (N, 2) per-stage velocity reference [v_l, v_p] [m/s] at the shifted
+            progress (paths with a speed profile), else None.
     """
 
     w: np.ndarray
     beta: np.ndarray | None
+    v_ref: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -74,17 +148,18 @@ class SolveResult:
 
     Attributes:
         command: the drive command to apply now.
-        states: (N+1, 4) predicted model states [X, Y, phi, s] (s may exceed the lap length).
+        states: (N+1, 4) predicted model states [X, Y, phi, s] (s: progress along the
+            planner's reference path, the centreline or the line; may exceed its length).
         inputs: (N, 3) planned inputs [v_l, delta, v_p].
         status: SOLVED, FALLBACK or BRAKING.
         solver_status: the back-end's return status text.
         iterations: solver iterations.
         solve_time_s: wall time of the solver call [s].
         beta: (N,) beta used at each stage.
-        s_m: the car's progress [m] in [0, lap length).
+        s_m: the car's progress [m] along the track's centreline in [0, lap length).
         e_con_m: the car's contour error [m] (positive right of the centreline).
         consecutive_failures: failed solves in a row, this one included.
-        method: "cimpcc" or "mpcc".
+        method: "cimpcc", "mpcc" or "cimpcc-line".
         speed_limited: the car was outside the track, so the speed command was capped at
             ``off_track_speed_mps`` (a safety rule outside the optimisation).
     """
@@ -118,6 +193,8 @@ class Planner:
         timer: Callable[[], float] = time.perf_counter,
         problem: OcpProblem | None = None,
         solver: SolverHandle | None = None,
+        reference: ReferencePath | None = None,
+        vehicle: DynamicVehicleParams | None = None,
     ) -> None:
         """Build (or reuse) the problem and solver.
 
@@ -125,10 +202,16 @@ class Planner:
             track: the track to race.
             settings: planner settings.
             curvature: curvature-mapping settings (default: the paper's).
-            method: "cimpcc" or "mpcc" (default: settings.method).
+            method: "cimpcc", "mpcc" or "cimpcc-line" (default: settings.method).
             weights: explicit weights (overrides the method's; e.g. a tuned MPCC).
             timer: clock for solve-time measurement [s].
-            problem, solver: an already built pair to share between planners on one track.
+            problem, solver: an already built pair to share between planners on one track
+                (the problem's reference path is then the planner's).
+            reference: the path to contour (default: the centreline, or for
+                ``cimpcc-line`` the minimum-time line of `vehicle`, ``min_time_reference``).
+            vehicle: the car the minimum-time line is solved for and whose tyre slip the
+                model has (``cimpcc-line`` only; default the F1TENTH gym's, the
+                simulator's default car).
         """
         self.track = track
         self.settings = settings
@@ -136,8 +219,27 @@ class Planner:
         self.weights = weights or settings.weights(self.method)
         curvature = curvature or CurvatureSettings()
         self.profile: CurvatureProfile = track_profile(track, curvature)
-        self.problem = problem or build_problem(track, settings)
+        if problem is None:
+            if reference is None:
+                reference = (
+                    min_time_reference(track, settings, vehicle)
+                    if self.method == CIMPCC_LINE
+                    else centreline_path(track)
+                )
+            slip = None
+            if self.method == CIMPCC_LINE and settings.cimpcc_line.model == "kinematic_slip":
+                slip = SlipModel.for_vehicle(vehicle or F1TENTH_GYM)
+            problem = build_problem(reference, problem_settings(settings, self.method), slip)
+        self.problem = problem
+        #: what the problem contours; its progress is the problem's s
+        self.reference: ReferencePath = problem.reference
+        self.path: Track = self.reference.path
+        if self.method == CIMPCC_LINE and self.reference.speed is None:
+            raise ValueError("cimpcc-line needs a reference path with a speed profile")
         self.solver = solver or make_solver(self.problem, settings.solver)
+        lead = settings.cimpcc_line.lead_pose_s if self.method == CIMPCC_LINE else 0.0
+        #: ``cimpcc-line``: the model over the lead time, ``F(x, u)`` (None: no lead)
+        self._lead = discretise(problem.dynamics, lead, "rk4") if lead > 0 else None
         self._timer = timer
         b = settings.bounds
         self._u_lo = np.array([b.v_l_mps[0], b.delta_rad[0], b.v_p_mps[0]])
@@ -169,6 +271,7 @@ class Planner:
         """Forget the previous plan (next step starts cold)."""
         self._w_prev: np.ndarray | None = None
         self._s_prev: float | None = None
+        self._s_path_prev: float | None = None  #: the last progress on the line
         self._u_applied = np.zeros(NU)
         self._failures = 0
         self._prepared: _Prepared | None = None
@@ -185,8 +288,9 @@ class Planner:
         """Do the next tick's work that needs no new pose, now (e.g. after publishing).
 
         Shifts the last solution by one stage, extrapolates its last stage with the model
-        and (``beta_mode = "per_stage"``) evaluates beta along it. Idempotent; ``step``
-        calls it when it was not called since the last solve.
+        and (``beta_mode = "per_stage"``) evaluates beta along it, or (a path with a speed
+        profile) the velocity references. Idempotent; ``step`` calls it when it was not
+        called since the last solve.
         """
         if self._prepared is not None or self._w_prev is None:
             return
@@ -197,10 +301,12 @@ class Planner:
         xs[-1, : len(S)] = np.asarray(pr.step(xs[-2, : len(S)], us[-1, :NU])).reshape(-1)
         xs[-1, len(S) :] = us[-1, :NU]
         us[:, UA.SLACK] = 0.0
-        beta = None
-        if self.settings.beta_mode == "per_stage":  # periodic in s: no lap alignment needed
+        beta = v_ref = None
+        if self.reference.speed is not None:  # periodic in s: no lap alignment needed
+            beta, v_ref = self._speed_refs(xs[: pr.horizon, XA.PROGRESS])
+        elif self.settings.beta_mode == "per_stage":
             beta = np.asarray(self.profile.beta_at(xs[: pr.horizon, XA.PROGRESS]), dtype=float)
-        self._prepared = _Prepared(pr.pack(xs, us), beta)
+        self._prepared = _Prepared(pr.pack(xs, us), beta, v_ref)
 
     def step(
         self,
@@ -238,22 +344,30 @@ class Planner:
         if rec is not None:
             self._still_ticks = 0
             s0 = x0[XA.PROGRESS] = self._s_prev = self.recovery.s_m
+            self._s_path_prev = None
             return self._recovering(x0, s0, e0, rec, on_command)
         if was_recovering:  # resume where the rule brought the car back
             s0, e0 = (float(v) for v in self.track.project(
                 np.array([x_m, y_m]), s_hint=self.recovery.s_m, window_m=1.0))
             x0[XA.PROGRESS] = self._s_prev = s0
+        if not self.reference.is_centreline:
+            if self._lead is not None:  # the pose when this plan's first input acts
+                x0[: len(S)] = np.asarray(self._lead(x0[: len(S)], self._u_applied)).reshape(-1)
+            x0[XA.PROGRESS] = self._path_progress(float(x0[XA.X]), float(x0[XA.Y]), s0)
 
         self.prepare()
         prep, self._prepared = self._prepared, None
+        v_ref = None
         if prep is None:
             xs_ws, us_ws = self._cold_guess(x0)
             w0, beta, s_pred = pr.pack(xs_ws, us_ws), None, xs_ws[:N, XA.PROGRESS]
         else:
-            w0, beta, s_pred = self._align(prep.w, x0), prep.beta, None
+            w0, beta, v_ref, s_pred = self._align(prep.w, x0), prep.beta, prep.v_ref, None
+        if self.reference.speed is not None and v_ref is None:
+            beta, v_ref = self._speed_refs(s_pred)
         if beta is None:
             beta = self._beta(s0, s_pred)
-        p = self._parameters(x0, beta)
+        p = self._parameters(x0, beta, v_ref)
 
         t0 = self._timer()
         try:
@@ -346,14 +460,43 @@ class Planner:
             return float(np.clip(speed, -cap, cap)), True
         return speed, False
 
+    def _path_progress(self, x_m: float, y_m: float, s_track: float) -> float:
+        """The car's progress [m] on the reference path (not the centreline): near the last
+        one, or (cold, after recovery) near the path point that matches the track's
+        progress `s_track` [m], so a line that passes close to another stretch of itself
+        cannot capture the car."""
+        if self._s_path_prev is None:
+            hint = self.reference.path_s_near(s_track, self.track.length_m)
+            s, _ = self.path.project(np.array([x_m, y_m]), s_hint=hint,
+                                     window_m=LINE_HINT_WINDOW_M)
+            s = float(s)
+        else:
+            s, _ = self.path.project_near(
+                x_m, y_m, self._s_path_prev, fallback_window_m=PROJECTION_WINDOW_M
+            )
+        self._s_path_prev = s
+        return s
+
+    def _speed_refs(self, s_pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(beta (N,), v_ref (N, 2)) of a path with a speed profile: beta = 1 and both
+        speeds [v_l, v_p] [m/s] the profile's command at each predicted progress [m]."""
+        speed = self.reference.speed
+        assert speed is not None  # only called for paths with a profile
+        v = np.asarray(speed.command_at(s_pred), dtype=float)
+        return np.ones(self.horizon), np.column_stack([v, v])
+
     def _beta(self, s0: float, s_pred: np.ndarray | None) -> np.ndarray:
         """beta per stage (N,): all g(NSC(s0)) (paper) or g(NSC(s_k)) of the warm start."""
         if self.settings.beta_mode == "per_stage" and s_pred is not None:
             return np.asarray(self.profile.beta_at(s_pred), dtype=float)
         return np.full(self.horizon, float(self.profile.beta_at(s0)))
 
-    def _parameters(self, x0: np.ndarray, beta: np.ndarray) -> np.ndarray:
-        """The parameter vector: weights packed once per weights object, x0 and beta set."""
+    def _parameters(
+        self, x0: np.ndarray, beta: np.ndarray, v_ref: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The parameter vector: weights packed once per weights object, x0 and beta set,
+        and with `v_ref` (N, 2) [m/s] both per-stage velocity references (``cimpcc-line``;
+        else the weights' v_up and v_low at every stage)."""
         layout = self.problem.layout
         if self._p_cache is None or self._p_cache[0] is not self.weights:
             w_du0 = 1.0 if self.settings.delta_u_on_applied else 0.0
@@ -362,6 +505,8 @@ class Planner:
         p = self._p_cache[1].copy()
         p[layout.slices["x0"]] = x0
         p[layout.slices["beta"]] = beta
+        if v_ref is not None:
+            p[layout.slices["v_up"]] = p[layout.slices["v_low"]] = v_ref.ravel()
         return p
 
     def _cold_guess(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -383,7 +528,7 @@ class Planner:
         """The shifted decision vector aligned with x0, in place: whole laps in s, whole
         turns in phi, xa_0 = x0."""
         prog, phi, first = self._w_progress, self._w_phi, self._w_first
-        L = self.track.length_m
+        L = self.path.length_m
         w[prog] += L * round((x0[XA.PROGRESS] - w[prog[0]]) / L)
         w[phi] += 2 * np.pi * round((x0[XA.PHI] - w[phi[0]]) / (2 * np.pi))
         w[first] = x0

@@ -13,9 +13,18 @@ gap k and path constraints of stage k for k = 1..N-1. The path constraints keep 
 predicted position inside the track, softened by the slack of that stage:
 ``-(w_left - margin) - slack <= e_con(F(xa_k, ua_k)) <= (w_right - margin) + slack``.
 
-Every weight, the current state and beta are parameters, so one built (and compiled)
-problem serves both methods and every retuning; only N, Ts, the integrator, L, the margin
-and the track are structural.
+The reference path is an argument of the builder (``reference.ReferencePath``): the track's
+centreline (the paper's CiMPCC and MPCC) or the minimum-time line (``cimpcc-line``), each a
+closed polyline with its own arc length ``s`` and its half-widths to the real boundaries,
+embedded as a bspline lookup.
+
+Every weight, the current state, beta and the per-stage velocity references ``v_low,k``,
+``v_up,k`` are parameters, so one built (and compiled) problem serves both paper methods and
+every retuning; only N, Ts, the integrator, the model (L, its tyre slip), the margin and the
+path are structural.
+CiMPCC and MPCC set ``v_low,k = v_low`` and ``v_up,k = v_up`` at every stage (paper eq. 11);
+``cimpcc-line`` sets ``beta_k = 1`` and ``v_up,k = v_low,k`` = the minimum-time profile's
+speed at stage k's predicted progress.
 """
 
 from __future__ import annotations
@@ -27,8 +36,14 @@ import casadi as ca
 import numpy as np
 
 from services.planner.cost import stage_cost, terminal_cost
-from services.planner.model import NU, NX, S, U, discretise, kinematic_bicycle
-from services.planner.reference import R, reference_lookup, track_errors
+from services.planner.model import NU, NX, S, SlipModel, U, discretise, kinematic_bicycle
+from services.planner.reference import (
+    R,
+    ReferencePath,
+    centreline_path,
+    reference_lookup,
+    track_errors,
+)
 from shared.config.planner import MethodWeights, PlannerSettings
 from shared.track import Track
 
@@ -56,6 +71,8 @@ class UA(IntEnum):
 
 NXA = len(XA)
 NUA = len(UA)
+#: Elements of the velocity pair ``v = [v_l, v_p]`` (paper eq. 11).
+NV = 2
 
 
 @dataclass(frozen=True)
@@ -83,9 +100,9 @@ class ParamLayout:
             "r1": NU,
             "r2": NU,
             "u_ref": NU,
-            "r3": 2,
-            "v_up": 2,
-            "v_low": 2,
+            "r3": NV,
+            "v_up": NV * self.horizon,  # v_up,k = [v_l, v_p] of stage k, stage by stage
+            "v_low": NV * self.horizon,
             "w_du0": 1,  # 1: weigh u_0 against the applied command, 0: paper (inside horizon)
             "slack_w": 2,  # linear, quadratic
         }
@@ -103,6 +120,11 @@ class ParamLayout:
     def split(self, p: ca.SX) -> dict[str, ca.SX]:
         """Symbolic blocks of ``p`` by name."""
         return {name: p[sl] for name, sl in self.slices.items()}
+
+    @staticmethod
+    def stage_pair(block: ca.SX, k: int) -> ca.SX:
+        """Stage k's velocity pair ``[v_l, v_p]`` of a per-stage block (``v_up``, ``v_low``)."""
+        return block[NV * k : NV * (k + 1)]
 
     def pack(
         self,
@@ -123,8 +145,8 @@ class ParamLayout:
         p[sl["r2"]] = weights.r2_input
         p[sl["u_ref"]] = weights.u_ref
         p[sl["r3"]] = weights.r3_velocity
-        p[sl["v_up"]] = weights.v_up_mps
-        p[sl["v_low"]] = weights.v_low_mps
+        p[sl["v_up"]] = np.tile(weights.v_up_mps, self.horizon)
+        p[sl["v_low"]] = np.tile(weights.v_low_mps, self.horizon)
         p[sl["w_du0"]] = w_du0
         p[sl["slack_w"]] = slack_w
         return p
@@ -143,8 +165,10 @@ class OcpProblem:
         horizon: N.
         dt_s: Ts [s].
         step: discrete model step ``F(x[4], u[3]) -> x[4]``.
+        dynamics: the continuous model ``f(x[4], u[3]) -> xdot[4]`` it discretises.
         errors: ``errors(x[4]) -> [e_con, e_lag]`` against the reference.
         signature: text that identifies the structure (for the compile cache key).
+        reference: the path the problem contours (its progress ``s`` is the state's).
     """
 
     nlp: dict
@@ -157,8 +181,10 @@ class OcpProblem:
     horizon: int
     dt_s: float
     step: ca.Function
+    dynamics: ca.Function
     errors: ca.Function
     signature: str
+    reference: ReferencePath
 
     @property
     def n_w(self) -> int:
@@ -189,16 +215,25 @@ class OcpProblem:
         return np.concatenate([stages.ravel(), xs[self.horizon]])
 
 
-def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:
-    """Build the CiMPCC/MPCC NLP on `track` with the structure fixed by `settings`.
+def build_problem(
+    reference: Track | ReferencePath,
+    settings: PlannerSettings,
+    slip: SlipModel | None = None,
+) -> OcpProblem:
+    """Build the CiMPCC/MPCC NLP on a reference path with the structure fixed by `settings`.
 
     Args:
-        track: the track whose centreline is the reference (embedded as a bspline).
+        reference: the path to contour (embedded as a bspline): a ``ReferencePath``, or a
+            track, whose centreline it then is.
         settings: planner settings (N, Ts, integrator, L, margin, bounds).
+        slip: the model's steady-state tyre slip (``model.SlipModel``, with its own L);
+            None: the paper's kinematic bicycle with ``settings.wheelbase_m``.
     """
+    path = reference if isinstance(reference, ReferencePath) else centreline_path(reference)
     N = settings.horizon_steps
-    F = discretise(kinematic_bicycle(settings.wheelbase_m), settings.dt_s, settings.integrator)
-    ref = reference_lookup(track)
+    f = kinematic_bicycle(settings.wheelbase_m, slip)
+    F = discretise(f, settings.dt_s, settings.integrator)
+    ref = reference_lookup(path.path)
     layout = ParamLayout(N)
     p = ca.SX.sym("p", layout.size)
     par = layout.split(p)
@@ -244,6 +279,8 @@ def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:
             u_prev=xk[XA.V_L_PREV : XA.V_P_PREV + 1],
             slack=slack,
             beta=par["beta"][k],
+            v_low=layout.stage_pair(par["v_low"], k),
+            v_up=layout.stage_pair(par["v_up"], k),
             par=par,
             dt_s=settings.dt_s,
             first_stage=(k == 0),
@@ -267,14 +304,15 @@ def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:
     errors = ca.Function("errors", [zeta], [ca.vertcat(e_c, e_l)])
     signature = "|".join(
         [
-            "cimpcc-ocp-v1",
+            "cimpcc-ocp-v2",  # v2: per-stage v_up/v_low, the path a builder argument
+            f"path={path.kind}",
             f"N={N}",
             f"dt={settings.dt_s!r}",
             f"int={settings.integrator}",
-            f"L={settings.wheelbase_m!r}",
+            f"L={settings.wheelbase_m!r}" if slip is None else f"slip={slip!r}",
             f"margin={margin!r}",
             f"bounds={b.model_dump_json()}",
-            f"track={track_fingerprint(track)}",
+            f"track={track_fingerprint(path.path)}",
         ]
     )
     return OcpProblem(
@@ -288,13 +326,15 @@ def build_problem(track: Track, settings: PlannerSettings) -> OcpProblem:
         horizon=N,
         dt_s=settings.dt_s,
         step=F,
+        dynamics=f,
         errors=errors,
         signature=signature,
+        reference=path,
     )
 
 
 def track_fingerprint(track: Track) -> str:
-    """A short hash of the track's geometry (for cache keys)."""
+    """A short hash of a track's or path's geometry: points and widths (for cache keys)."""
     import hashlib
 
     h = hashlib.sha256()

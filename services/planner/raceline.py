@@ -1,26 +1,44 @@
-"""The raceline baseline of the paper's Table I (RDM+OTG): a global path, a speed profile,
-a path tracker. Pure maths, no I/O.
+"""The raceline baseline of the paper's Table I (RDM+OTG): a global line, a speed profile,
+a tracker. Pure maths; the only I/O is the minimum-time lap's disk cache, reached through an
+injectable loader (``services.planner.mintime_store.min_time_lap`` by default).
 
 The paper compares CiMPCC with a path-velocity decomposition: a minimum-curvature path
 (RDM, Braghin et al. 2008), a velocity plan (OTG, Werling et al. 2010) and a pursuit
-tracker (Becker et al. 2023). Ours, built once per track:
+tracker (Becker et al. 2023). Ours, built once per track (``[planner.raceline] line``):
 
-1. **Path** (``min_curvature_offsets``): the centreline resampled every ``ds_m``, each point
-   moved along its left normal by ``alpha_i``; minimise the integral of the squared
-   curvature of the moved points, subject to ``-(w_right - m) <= alpha_i <= w_left - m``
-   with ``m`` the margin (IPOPT on the exact discrete curvature).
-2. **Speed** (``speed_profile``): ``v <= min(v_max, sqrt(a_lat / |kappa|))``, then a
-   forward pass with ``a_accel`` and a backward pass with ``a_brake``, around the loop.
-   (Werling's OTG plans jerk-optimal quintics in a Frenet frame; a forward-backward
-   profile is the usual simplification and what we do.)
-3. **Tracker** (``RacelinePlanner.step``): pure pursuit from the rear axle towards the
-   raceline point ``l_0 + k v`` ahead, ``delta = atan(2 L sin(a) / l_d)``; the speed
-   command is the profile ``speed_preview_s`` ahead of the car (actuation delays).
-   (Becker et al.'s model- and acceleration-based pursuit adds a model of the car; plain
-   pure pursuit is what we do.)
+- ``"min_time"`` (default): the **minimum-time lap** of the car (``services.planner.
+  mintime``: the car's own single-track model at its friction limits, top speed
+  ``v_max_mps``, footprint ``min_time_margin_m`` inside the boundaries, steering within
+  the planner's ``[planner.bounds] delta_rad``): its CoG path, speeds, acceleration demand
+  and steering. Solved once per track, car and settings, then cached.
+- ``"min_curvature"``: the line of least curvature (``min_curvature_offsets``): the
+  centreline resampled every ``ds_m``, each point moved along its left normal by
+  ``alpha_i``; minimise the integral of the squared curvature of the moved points,
+  subject to ``-(w_right - m) <= alpha_i <= w_left - m`` with ``m`` = ``margin_m`` (IPOPT
+  on the exact discrete curvature); then the speed (``speed_profile``): ``v <= min(v_max,
+  sqrt(a_lat / |kappa|))``, a forward pass with ``a_accel`` and a backward pass with
+  ``a_brake``, around the loop (Werling's OTG plans jerk-optimal quintics in a Frenet
+  frame; a forward-backward profile is the usual simplification); the steering fed
+  forward from the steady-state single-track model at the planned speed.
+
+Tracker (``services.planner.tracker``, the one the minimum-time replay uses): the car's
+CoG (from the rear-axle pose and ``l_r``) projected onto the line; the line's steering
+over the window the command will act in (``steering_delay_s`` after the pose, for one
+planner period) plus ``k_e`` times the lateral error of a point ``l_d = l_0 + T_l v``
+ahead; the speed command ``v_p + a_p / k`` through the car's proportional speed loop of
+gain ``k``, over the speed channel's window (``speed_delay_s``), with an acceleration cut
+when the car drifts to the outside of a bend. (Becker et al.'s model- and
+acceleration-based pursuit is the same idea.)
 
 ``RacelinePlanner`` has the ``Planner`` interface the bench's closed loop uses (``step``,
-``reset``, ``settings``), so the bench races it like the MPC methods.
+``reset``, ``settings``), so the bench races it like the MPC methods. It is given the car
+(``vehicle=``, a ``DynamicVehicleParams``; None: ``shared.config.vehicle.F1TENTH_GYM``,
+the simulator's default car); callers racing another car pass ``cfg.simulator.vehicle``.
+
+Measured (``racestack bench --laps 17 --methods raceline``, default car, 20 Hz, 2 ms
+compute delay): map416 7.213 s (1.012 x the 7.131 s minimum-time lap), paperlike 9.603 s
+(1.009 x 9.517 s), no off-track event; the ``min_curvature`` line with this tracker
+8.857 s / 11.458 s.
 """
 
 from __future__ import annotations
@@ -34,9 +52,12 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from services.planner.mintime import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.planner import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
 from services.planner.recovery import Recovery
+from services.planner.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
+from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
 from shared.curvature import track_profile
 from shared.track import Track, TrackError
 
@@ -56,9 +77,13 @@ class RacelineError(TrackError):
     in every shell, like any other unusable track)."""
 
 
+#: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
+MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
+
+
 @dataclass(frozen=True)
 class Raceline:
-    """A closed racing line with its speed profile.
+    """A closed racing line with its speed profile and the tracker's plan.
 
     Attributes:
         track: the line as a ``Track`` (``xy`` the line, widths its distances to the
@@ -66,12 +91,18 @@ class Raceline:
         offset_m: (n,) lateral offset of each point from the centreline [m] (left +).
         curvature_1pm: (n,) signed curvature of the line [1/m].
         speed_mps: (n,) planned speed at each point [m/s].
+        reference: the plan the tracker follows (on ``track``'s points).
+        kind: ``"min_time"`` or ``"min_curvature"``.
+        min_time: the minimum-time lap the line comes from (``kind == "min_time"``).
     """
 
     track: Track
     offset_m: np.ndarray
     curvature_1pm: np.ndarray
     speed_mps: np.ndarray
+    reference: ReferenceLap
+    kind: str = "min_curvature"
+    min_time: MinTimeLap | None = None
 
     def speed_at(self, s_m: float) -> float:
         """Planned speed [m/s] at arc length `s_m` of the line (periodic)."""
@@ -81,16 +112,15 @@ class Raceline:
     @cached_property
     def _closed_speed(self) -> tuple[np.ndarray, np.ndarray]:
         """(s, v) with the first point repeated at the lap length (for interpolation)."""
-        return (np.append(self.track.s_m, self.track.length_m),
-                np.append(self.speed_mps, self.speed_mps[0]))
+        return (
+            np.append(self.track.s_m, self.track.length_m),
+            np.append(self.speed_mps, self.speed_mps[0]),
+        )
 
     @property
     def lap_time_s(self) -> float:
-        """Lap time of the profile itself [s] (what a perfect tracker would drive)."""
-        t = self.track
-        seg = np.hypot(*(np.roll(t.xy, -1, axis=0) - t.xy).T)
-        v_mid = 0.5 * (self.speed_mps + np.roll(self.speed_mps, -1))
-        return float(np.sum(seg / np.maximum(v_mid, 1e-3)))
+        """Lap time of the plan itself [s] (what a perfect tracker would drive)."""
+        return self.reference.lap_time_s
 
 
 def resample(track: Track, ds_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -146,9 +176,15 @@ def min_curvature_offsets(
         "raceline_nlp",
         "ipopt",
         {"x": alpha, "f": energy},
-        {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-         "ipopt.max_iter": 500, "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4,
-         "ipopt.acceptable_iter": 10},
+        {
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.sb": "yes",
+            "ipopt.max_iter": 500,
+            "ipopt.tol": 1e-6,
+            "ipopt.acceptable_tol": 1e-4,
+            "ipopt.acceptable_iter": 10,
+        },
     )
     sol = solver(x0=np.zeros(n), lbx=lo, ubx=hi)
     stats = solver.stats()
@@ -184,8 +220,45 @@ def speed_profile(
     return v
 
 
-def build_raceline(track: Track, settings: RacelineSettings) -> Raceline:
-    """The minimum-curvature line and its speed profile on `track`."""
+def default_min_time_loader(
+    track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings
+) -> MinTimeLap:
+    """``services.planner.mintime_store.min_time_lap`` with its default cache (imported
+    here so that this module has no I/O of its own)."""
+    from services.planner.mintime_store import min_time_lap
+
+    return min_time_lap(track, vehicle, settings)
+
+
+def planning_vehicle(
+    vehicle: DynamicVehicleParams, steering_limits_rad: tuple[float, float] | None
+) -> DynamicVehicleParams:
+    """`vehicle` with its steering range cut to `steering_limits_rad` (the planner's
+    bounds): the line is planned with the steering the tracker may command."""
+    if steering_limits_rad is None:
+        return vehicle
+    lo = max(vehicle.steering_min_rad, steering_limits_rad[0])
+    hi = min(vehicle.steering_max_rad, steering_limits_rad[1])
+    if not lo < 0.0 < hi:
+        raise ValueError(f"steering limits {steering_limits_rad} leave no range around 0")
+    if (lo, hi) == (vehicle.steering_min_rad, vehicle.steering_max_rad):
+        return vehicle
+    return DynamicVehicleParams.model_validate(
+        {**vehicle.model_dump(), "steering_min_rad": lo, "steering_max_rad": hi}
+    )
+
+
+def min_time_settings(settings: RacelineSettings) -> MinTimeSettings:
+    """The minimum-time problem of `settings`: top speed, grid, footprint margin."""
+    return MinTimeSettings(
+        v_max_mps=settings.v_max_mps, ds_m=settings.ds_m, margin_m=settings.min_time_margin_m
+    )
+
+
+def build_min_curvature_raceline(
+    track: Track, settings: RacelineSettings, vehicle: DynamicVehicleParams = F1TENTH_GYM
+) -> Raceline:
+    """The minimum-curvature line and its speed profile on `track` (module docstring)."""
     xy, normals, w_r, w_l = resample(track, settings.ds_m)
     m = settings.margin_m
     lo, hi = -(w_r - m), w_l - m
@@ -207,21 +280,105 @@ def build_raceline(track: Track, settings: RacelineSettings) -> Raceline:
         raise RacelineError(track.source, exc.problem) from None
     line = xy + alpha[:, None] * normals
     try:
-        line_track = Track(f"{track.name}-raceline", line, w_r + alpha, w_l - alpha,
-                           source=track.source)
+        line_track = Track(
+            f"{track.name}-raceline", line, w_r + alpha, w_l - alpha, source=track.source
+        )
     except TrackError as exc:
         problem = f"the raceline is not a valid loop ({exc.problem})"
         raise RacelineError(track.source, problem) from None
     kappa = line_track.signed_curvature()
     k = max(1, settings.curvature_smoothing_points)
-    kappa = np.convolve(np.concatenate([kappa[-k:], kappa, kappa[:k]]),
-                        np.ones(2 * k + 1) / (2 * k + 1), mode="same")[k:-k]
+    kappa = np.convolve(
+        np.concatenate([kappa[-k:], kappa, kappa[:k]]),
+        np.ones(2 * k + 1) / (2 * k + 1),
+        mode="same",
+    )[k:-k]
     seg = np.hypot(*(np.roll(line, -1, axis=0) - line).T)
-    return Raceline(line_track, alpha, kappa, speed_profile(kappa, seg, settings))
+    v = speed_profile(kappa, seg, settings)
+    reference = ReferenceLap.from_path(line_track, kappa, v, vehicle)
+    return Raceline(line_track, alpha, kappa, v, reference, kind="min_curvature")
+
+
+def build_min_time_raceline(
+    track: Track,
+    settings: RacelineSettings,
+    vehicle: DynamicVehicleParams = F1TENTH_GYM,
+    steering_limits_rad: tuple[float, float] | None = None,
+    loader: MinTimeLoader | None = None,
+) -> Raceline:
+    """The minimum-time lap of `vehicle` on `track` as a raceline (module docstring).
+
+    Raises:
+        RacelineError: no minimum-time lap exists (or the line is not a valid loop).
+    """
+    car = planning_vehicle(vehicle, steering_limits_rad)
+    try:
+        lap = (loader or default_min_time_loader)(track, car, min_time_settings(settings))
+    except MinTimeError as exc:
+        raise RacelineError(track.source, f"no minimum-time line: {exc.problem}") from None
+    xy = np.column_stack([lap.x_m, lap.y_m])
+    s_c, e_c = track.project(xy)
+    w_r, w_l = track.interp_width(s_c)
+    try:
+        line_track = Track(f"{track.name}-raceline", xy, w_r - e_c, w_l + e_c, source=track.source)
+    except TrackError as exc:
+        problem = f"the minimum-time line is not a valid loop ({exc.problem})"
+        raise RacelineError(track.source, problem) from None
+    reference = ReferenceLap.from_min_time(lap, line_track)
+    return Raceline(
+        line_track,
+        -np.asarray(e_c, dtype=float),
+        np.asarray(lap.kappa_radpm, dtype=float),
+        np.asarray(lap.v_mps, dtype=float),
+        reference,
+        kind="min_time",
+        min_time=lap,
+    )
+
+
+def build_raceline(
+    track: Track,
+    settings: RacelineSettings,
+    vehicle: DynamicVehicleParams = F1TENTH_GYM,
+    steering_limits_rad: tuple[float, float] | None = None,
+    loader: MinTimeLoader | None = None,
+) -> Raceline:
+    """The raceline ``settings.line`` asks for on `track` for `vehicle` (module docstring).
+
+    Args:
+        track: the track.
+        settings: ``[planner.raceline]``.
+        vehicle: the car the line is planned for.
+        steering_limits_rad: the planner's steering bounds (the minimum-time line is
+            planned within them); None: the car's own.
+        loader: where the minimum-time lap comes from (default: the disk cache, solving
+            on a miss).
+    """
+    if settings.line == "min_curvature":
+        return build_min_curvature_raceline(track, settings, vehicle)
+    return build_min_time_raceline(track, settings, vehicle, steering_limits_rad, loader)
+
+
+def planner_timing(settings: PlannerSettings) -> TrackerTiming:
+    """The tracker's timing in the planner: one planner period, the configured delays."""
+    o = settings.raceline
+    return TrackerTiming(settings.dt_s, o.speed_delay_s, o.steering_delay_s)
+
+
+def tracker_gains(settings: RacelineSettings) -> TrackerGains:
+    """The tracker's feedback gains from ``[planner.raceline]``."""
+    return TrackerGains(
+        k_lateral_radpm=settings.k_lateral_radpm,
+        lookahead_base_m=settings.lookahead_base_m,
+        lookahead_time_s=settings.lookahead_time_s,
+        lookahead_min_m=settings.lookahead_min_m,
+        lookahead_max_m=settings.lookahead_max_m,
+        k_outward_per_s2=settings.k_outward_per_s2,
+    )
 
 
 class RacelinePlanner:
-    """Pure pursuit along a precomputed raceline, with the ``Planner`` interface."""
+    """The tracker along a precomputed raceline, with the ``Planner`` interface."""
 
     method = METHOD
 
@@ -231,19 +388,32 @@ class RacelinePlanner:
         settings: PlannerSettings,
         curvature: CurvatureSettings | None = None,
         *,
+        vehicle: DynamicVehicleParams | None = None,
         raceline: Raceline | None = None,
+        min_time_loader: MinTimeLoader | None = None,
         timer: Callable[[], float] = time.perf_counter,
     ) -> None:
-        """Build the raceline (or reuse one) on `track`."""
+        """Build the raceline (or reuse one) on `track` for `vehicle` (None: the default
+        car, ``F1TENTH_GYM``)."""
         self.track = track
         self.settings = settings
         self.options = settings.raceline
-        self.raceline = raceline or build_raceline(track, settings.raceline)
+        self.vehicle = vehicle or F1TENTH_GYM
+        b = settings.bounds
+        self._delta_lim = (b.delta_rad[0], b.delta_rad[1])
+        self._speed_lim = (b.v_l_mps[0], b.v_l_mps[1])
+        self.raceline = raceline or build_raceline(
+            track, settings.raceline, self.vehicle, self._delta_lim, min_time_loader
+        )
+        self.tracker = Tracker.for_vehicle(
+            self.raceline.reference,
+            planner_timing(settings),
+            tracker_gains(self.options),
+            self.vehicle,
+        )
         curvature = curvature or CurvatureSettings()
         self.profile = track_profile(track, curvature)
         self._timer = timer
-        b = settings.bounds
-        self._delta_lim = (b.delta_rad[0], b.delta_rad[1])
         self.recovery = Recovery(
             track, settings.recovery, settings.wheelbase_m, min(-b.delta_rad[0], b.delta_rad[1])
         )
@@ -258,6 +428,7 @@ class RacelinePlanner:
         """Forget where the car was (next step searches the whole line)."""
         self._s_line: float | None = None
         self._s_track: float | None = None
+        self.tracker.reset()
         self.recovery.reset()
 
     def prepare(self) -> None:
@@ -270,49 +441,53 @@ class RacelinePlanner:
         yaw_rad: float,
         on_command: Callable[[DriveCommand], None] | None = None,
     ) -> SolveResult:
-        """The pursuit command from the rear-axle pose (x, y [m], yaw [rad])."""
+        """The tracker's command from the rear-axle pose (x, y [m], yaw [rad])."""
         t0 = self._timer()
         line = self.raceline.track
-        o = self.options
         if not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad)):
             cmd = DriveCommand(0.0, 0.0)
             if on_command is not None:
                 on_command(cmd)
-            return self._result(cmd, x_m, y_m, yaw_rad, 0.0, 0.0, 0.0, "non-finite pose", t0,
-                                status=BRAKING)
-        s_l = self._project(line, x_m, y_m, self._s_line)
+            return self._result(
+                cmd, x_m, y_m, yaw_rad, 0.0, 0.0, 0.0, "non-finite pose", t0, status=BRAKING
+            )
+        lr = self.vehicle.lr_m
+        cx, cy = x_m + lr * math.cos(yaw_rad), y_m + lr * math.sin(yaw_rad)  # the CoG
         s_t, e_t = self._project_track(x_m, y_m)
-        self._s_line, self._s_track = s_l, s_t
+        self._s_track = s_t
         was_recovering = self.recovery.active
         rec = self.recovery.update(x_m, y_m, yaw_rad, s_t, e_t)
+        hint = self._s_line
         if rec is not None or was_recovering:
             # follow the rule's anchored progress, on the track and (scaled) on the line
             s_t = self._s_track = self.recovery.s_m
-            hint = s_t * line.length_m / self.track.length_m
-            s_l = self._s_line = float(line.project(np.array([x_m, y_m]), hint, 2.0)[0])
+            guess = s_t * line.length_m / self.track.length_m
+            hint = float(line.project(np.array([cx, cy]), guess, 2.0)[0])
         if rec is not None:
+            self._s_line = hint
             cmd = DriveCommand(rec.speed_mps, rec.steering_rad)
             if on_command is not None:
                 on_command(cmd)
-            return self._result(cmd, x_m, y_m, yaw_rad, s_l, s_t, e_t, f"recovery: {rec.reason}",
-                                t0, status=RECOVERING)
-        v_ref = self.raceline.speed_at(s_l)
-        l_d = min(max(o.lookahead_base_m + o.lookahead_gain_s * v_ref, o.lookahead_min_m),
-                  o.lookahead_max_m)
-        tx, ty = line.point_at(s_l + l_d)
-        a = math.atan2(float(ty) - y_m, float(tx) - x_m) - yaw_rad
-        delta = math.atan2(2.0 * self.settings.wheelbase_m * math.sin(a), l_d)
-        delta = min(max(delta, self._delta_lim[0]), self._delta_lim[1])
-        speed = self.raceline.speed_at(s_l + v_ref * o.speed_preview_s)
+            return self._result(
+                cmd,
+                x_m,
+                y_m,
+                yaw_rad,
+                hint,
+                s_t,
+                e_t,
+                f"recovery: {rec.reason}",
+                t0,
+                status=RECOVERING,
+            )
+        tc = self.tracker.command(cx, cy, yaw_rad, hint)
+        self._s_line = tc.s_m
+        speed = min(max(tc.speed_mps, self._speed_lim[0]), self._speed_lim[1])
+        delta = min(max(tc.steering_rad, self._delta_lim[0]), self._delta_lim[1])
         cmd = DriveCommand(speed, delta)
         if on_command is not None:
             on_command(cmd)
-        return self._result(cmd, x_m, y_m, yaw_rad, s_l, s_t, e_t, "pure pursuit", t0)
-
-    def _project(self, t: Track, x: float, y: float, hint: float | None) -> float:
-        if hint is None:
-            return float(t.project(np.array([x, y]))[0])
-        return t.project_near(x, y, hint)[0]
+        return self._result(cmd, x_m, y_m, yaw_rad, tc.s_m, s_t, e_t, "tracker", t0)
 
     def _project_track(self, x: float, y: float) -> tuple[float, float]:
         if self._s_track is None:

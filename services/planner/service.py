@@ -161,7 +161,7 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     log.info(
         "building the %s planner on %s (compiled problem cached)", cfg.planner.method, track.name
     )
-    planner = make_planner(track, cfg.planner, cfg.curvature)
+    planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
     with Bus(cfg.bus, SERVICE) as bus:
         shell = PlannerShell(planner, bus)
         drops = DropReporter(bus, SERVICE, publisher=shell.log_pub)

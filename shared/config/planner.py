@@ -51,6 +51,9 @@ CIMPCC_WEIGHTS = MethodWeights()
 MPCC_WEIGHTS = MethodWeights(
     r2_input=(40.0, 10.0, 40.0), u_ref=(3.3, 0.0, 3.0), r3_velocity=(0.0, 0.0)
 )
+#: cimpcc-line: CiMPCC's weights with a 7x lighter steering-rate weight (R1 delta 3500 ->
+#: 500): holding a line within centimetres needs the steering the centreline never asked for.
+CIMPCC_LINE_WEIGHTS = CIMPCC_WEIGHTS.model_copy(update={"r1_delta_u": (10.0, 500.0, 0.0)})
 
 
 class InputBounds(Section):
@@ -86,25 +89,107 @@ class SolverSettings(Section):
 
 
 class RacelineSettings(Section):
-    """The raceline baseline (``services/planner/raceline.py``): path, speed, tracker."""
+    """The raceline baseline (``services/planner/raceline.py``): line, speed, tracker
+    (``services/planner/tracker.py``)."""
 
+    line: Literal["min_time", "min_curvature"] = Field(
+        "min_time",
+        description="'min_time': the car's minimum-time lap (solved once per track, cached); "
+        "'min_curvature': the least-curved line with a forward-backward speed profile",
+    )
     ds_m: float = Field(0.1, gt=0.01, le=1.0, description="spacing of the raceline points [m]")
     margin_m: float = Field(
-        0.3, ge=0.0, le=2.0, description="keep the line this far inside the boundaries [m]"
+        0.3, ge=0.0, le=2.0,
+        description="min_curvature: keep the line this far inside the boundaries [m]",
     )
-    a_lat_mps2: float = Field(5.5, gt=0.0, le=50.0, description="lateral acceleration limit")
-    a_accel_mps2: float = Field(4.0, gt=0.0, le=50.0, description="acceleration limit [m/s^2]")
-    a_brake_mps2: float = Field(5.0, gt=0.0, le=50.0, description="braking limit [m/s^2]")
+    min_time_margin_m: float = Field(
+        0.02, ge=0.0, le=1.0,
+        description="min_time: keep the car's footprint this far inside the boundaries [m]",
+    )
+    a_lat_mps2: float = Field(
+        5.5, gt=0.0, le=50.0, description="min_curvature: lateral acceleration limit [m/s^2]"
+    )
+    a_accel_mps2: float = Field(
+        4.0, gt=0.0, le=50.0, description="min_curvature: acceleration limit [m/s^2]"
+    )
+    a_brake_mps2: float = Field(
+        5.0, gt=0.0, le=50.0, description="min_curvature: braking limit [m/s^2]"
+    )
     v_max_mps: float = Field(4.18, gt=0.0, le=20.0, description="speed cap (CiMPCC's v_l up)")
     curvature_smoothing_points: int = Field(
-        3, ge=1, le=50, description="half-width of the moving average on the line's curvature"
+        3, ge=1, le=50,
+        description="min_curvature: half-width of the moving average on the line's curvature",
     )
-    lookahead_base_m: float = Field(0.3, ge=0.0, le=10.0, description="pure pursuit l_0 [m]")
-    lookahead_gain_s: float = Field(0.2, ge=0.0, le=5.0, description="pure pursuit k [s]")
-    lookahead_min_m: float = Field(0.4, gt=0.0, le=10.0)
-    lookahead_max_m: float = Field(2.0, gt=0.0, le=20.0)
-    speed_preview_s: float = Field(
-        0.1, ge=0.0, le=2.0, description="command the profile speed this far ahead [s]"
+    k_lateral_radpm: float = Field(
+        0.5, ge=0.0, le=10.0, description="tracker: steering per m of look-ahead error [rad/m]"
+    )
+    lookahead_base_m: float = Field(0.0, ge=0.0, le=10.0, description="tracker: l_0 [m]")
+    lookahead_time_s: float = Field(
+        0.4, ge=0.0, le=5.0, description="tracker: look-ahead per m/s of speed [s]"
+    )
+    lookahead_min_m: float = Field(0.5, gt=0.0, le=10.0, description="tracker: l_d min [m]")
+    lookahead_max_m: float = Field(4.0, gt=0.0, le=20.0, description="tracker: l_d max [m]")
+    k_outward_per_s2: float = Field(
+        25.0, ge=0.0, le=1000.0,
+        description="tracker: acceleration cut per m of drift to a bend's outside [1/s^2]",
+    )
+    speed_delay_s: float = Field(
+        0.012, ge=0.0, le=1.0,
+        description="tracker: pose -> speed loop (compute 2 ms + actuation 10 ms) [s]",
+    )
+    steering_delay_s: float = Field(
+        0.06, ge=0.0, le=1.0,
+        description="tracker: pose -> wheels [s]: compute 2 + actuation 10 + steering 20 + "
+        "servo 10 ms, + 18 ms found best at 20 Hz in the bench (map416, paperlike)",
+    )
+
+
+class CimpccLineSettings(Section):
+    """``cimpcc-line`` (issue #12): CiMPCC's cost contouring the car's minimum-time line.
+
+    The line and its speed profile are the minimum-time lap (``services.planner.mintime``)
+    of the car, solved once per track and cached; the velocity pulls take the profile's
+    speed at each predicted stage (beta = 1). Tuned on map416 and paperlike in the bench
+    (``services/planner/planner.py``, ``services/planner/reference.py``).
+    """
+
+    weights: MethodWeights = Field(
+        CIMPCC_LINE_WEIGHTS,
+        description="the paper's CiMPCC weights but R1 = diag(10, 500, 0); v_up/v_low "
+        "are unused (the speed profile sets them per stage)",
+    )
+    horizon_steps: int = Field(10, ge=2, le=60, description="N of this method's problem")
+    model: Literal["kinematic", "kinematic_slip"] = Field(
+        "kinematic_slip",
+        description="'kinematic': the paper's bicycle (wheelbase_m); 'kinematic_slip': with "
+        "the car's steady-state tyre slip and wheelbase (services/planner/model.py)",
+    )
+    lead_pose_s: float = Field(
+        0.04, ge=0.0, le=0.5,
+        description="plan from the pose predicted this far ahead with the acting command "
+        "(compute 2 + actuation 10 + steering 20 + servo ~10 ms) [s]; 0: the measured pose",
+    )
+    v_max_mps: float = Field(
+        4.18, gt=1.0, le=100.0, description="top speed of the minimum-time lap [m/s]"
+    )
+    line_margin_m: float = Field(
+        0.06, ge=0.0, le=1.0,
+        description="the minimum-time lap keeps its footprint this far inside [m] (room for "
+        "the tracking error, at most 5 cm in the bench)",
+    )
+    grip_fraction: float = Field(
+        0.95, gt=0.1, le=1.0,
+        description="the minimum-time lap is solved for the car with mu times this (at the "
+        "full limit the car drifts wide and loses more time than the 5 % costs)",
+    )
+    accel_lead_s: float | None = Field(
+        None, ge=0.0, le=2.0,
+        description="speed command lead over the lap's acceleration input [s]; None: "
+        "1 / the car's speed_gain_accel_per_s (its speed loop's gain)",
+    )
+    brake_lead_s: float | None = Field(
+        None, ge=0.0, le=2.0,
+        description="... over its braking input [s]; None: 1 / speed_gain_brake_per_s",
     )
 
 
@@ -134,11 +219,12 @@ class RecoverySettings(Section):
 class PlannerSettings(Section):
     """The CiMPCC / MPCC planner: one problem, two weight sets."""
 
-    method: Literal["cimpcc", "mpcc", "raceline"] = Field(
+    method: Literal["cimpcc", "mpcc", "raceline", "cimpcc-line"] = Field(
         "cimpcc", description="the planner the service runs ('raceline': the baseline)"
     )
     cimpcc: MethodWeights = CIMPCC_WEIGHTS
     mpcc: MethodWeights = MPCC_WEIGHTS
+    cimpcc_line: CimpccLineSettings = CimpccLineSettings()
     horizon_steps: int = Field(10, ge=2, le=60, description="N_p = N_c")
     dt_s: float = Field(
         0.05, gt=0.0, le=0.5, description="model step Ts [s]; also the planner period"
@@ -186,6 +272,8 @@ class PlannerSettings(Section):
     def weights(self, method: str | None = None) -> MethodWeights:
         """The weight set of `method` (default: the configured one)."""
         name = method or self.method
+        if name == "cimpcc-line":
+            return self.cimpcc_line.weights
         if name not in ("cimpcc", "mpcc"):
             raise ValueError(f"unknown method {name!r}")
         return getattr(self, name)

@@ -92,7 +92,7 @@ class InputCol(IntEnum):
 
 # The allowed strings of the choice fields (msgspec rejects any other value).
 PlanStatus = Literal["solved", "fallback", "braking", "recovering"]
-PlanMethod = Literal["cimpcc", "mpcc", "raceline"]
+PlanMethod = Literal["cimpcc", "mpcc", "raceline", "cimpcc-line"]
 LapKind = Literal["start", "lap", "off_track", "back_on_track"]
 LogLevel = Literal["debug", "info", "warning", "error"]
 SimAction = Literal["reset", "pause", "resume"]

@@ -1,0 +1,1 @@
+"""``racestack tune``: parameter search of a method for the fastest clean laps (Optuna)."""

@@ -1,0 +1,212 @@
+"""``cimpcc-line`` (issue #12): CiMPCC's problem builder contouring the minimum-time line.
+
+The paper's methods are covered, unchanged, by ``test_planner_solve.py``; here: the line as a
+reference path, the per-stage velocity references, the slip model, the compile-cache key,
+a circle (steady state on the line at the profile's speed) and a lap in the bench loop.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from services.bench.closed_loop import LoopOptions, run_method
+from services.bench.run import main as bench_main
+from services.planner.methods import make_planner
+from services.planner.model import S, SlipModel, U, discretise, kinematic_bicycle, step_numpy
+from services.planner.planner import CIMPCC_LINE, SOLVED, Planner, min_time_reference
+from services.planner.problem import NV, ParamLayout, build_problem
+from services.planner.reference import CENTRELINE, MIN_TIME_LINE, ReferencePath
+from services.planner.service import plan_message
+from services.planner.solver import cache_key
+from shared.config import load_config
+from shared.config.planner import CIMPCC_WEIGHTS, PlannerSettings, SolverSettings
+from shared.config.vehicle import F1TENTH_GYM
+from shared.track import Track
+
+UNCOMPILED = PlannerSettings(method=CIMPCC_LINE, solver=SolverSettings(compile=False))
+#: Centreline radius [m] of the test circle: tight enough that grip, not the 4.18 m/s cap,
+#: sets the line's speed.
+CIRCLE_RADIUS_M = 1.5
+HALF_WIDTH_M = 0.6
+
+
+def circle(radius: float = CIRCLE_RADIUS_M, n: int = 400) -> Track:
+    """Counter-clockwise circle about the origin, 1.2 m wide."""
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    xy = radius * np.column_stack([np.cos(t), np.sin(t)])
+    return Track("circle", xy, np.full(n, HALF_WIDTH_M), np.full(n, HALF_WIDTH_M))
+
+
+@pytest.fixture(scope="module")
+def circle_line() -> tuple[Track, ReferencePath]:
+    """The circle and its minimum-time line (solved once per test session, then cached)."""
+    track = circle()
+    return track, min_time_reference(track, UNCOMPILED)
+
+
+def test_the_line_is_a_path_with_the_real_track_limits(circle_line) -> None:
+    track, ref = circle_line
+    assert ref.kind == MIN_TIME_LINE and not ref.is_centreline and ref.speed is not None
+    path = ref.path
+    # measured along the centreline's normal, the two half-widths add up to the track's width
+    np.testing.assert_allclose(path.w_left_m + path.w_right_m, 2 * HALF_WIDTH_M, atol=1e-6)
+    # on a circle the fastest line is a circle near the inside boundary (left: the centre)
+    r = np.hypot(*path.xy.T)
+    assert np.ptp(r) < 0.01
+    np.testing.assert_allclose(path.w_left_m, r - (CIRCLE_RADIUS_M - HALF_WIDTH_M), atol=1e-3)
+    assert 0.1 < path.w_left_m.min() < 0.4
+    # its own arc length, and every point's track progress within the lap
+    assert path.length_m == pytest.approx(2 * np.pi * r.mean(), rel=1e-3)
+    assert np.all((ref.track_s_m >= 0.0) & (ref.track_s_m < track.length_m))
+    # a constant speed a bit under the friction circle's sqrt(0.95 mu g r) and the cap
+    v = ref.speed.speed_at(np.linspace(-5.0, 20.0, 50))  # periodic in s
+    assert np.ptp(v) < 1e-3
+    assert 2.5 < v[0] < min(4.18, np.sqrt(0.95 * F1TENTH_GYM.mu * 9.81 * r.mean()))
+    # the speed command leads the profile by what the P speed loop needs for the tyres' drag
+    assert np.all(ref.speed.command_mps > ref.speed.v_mps)
+
+
+def test_cimpcc_keeps_the_papers_references_at_every_stage() -> None:
+    layout = ParamLayout(10)
+    assert layout.sizes["v_up"] == layout.sizes["v_low"] == NV * 10
+    p = layout.pack(np.zeros(7), 0.5, CIMPCC_WEIGHTS, 0.0, (1.0, 2.0))
+    v_up = p[layout.slices["v_up"]].reshape(10, NV)
+    v_low = p[layout.slices["v_low"]].reshape(10, NV)
+    np.testing.assert_array_equal(v_up, np.tile(CIMPCC_WEIGHTS.v_up_mps, (10, 1)))
+    np.testing.assert_array_equal(v_low, np.tile(CIMPCC_WEIGHTS.v_low_mps, (10, 1)))
+    block = ca.DM(np.arange(2 * NV * 10))
+    assert [float(v) for v in ca.vertsplit(ParamLayout.stage_pair(block, 3))] == [6.0, 7.0]
+
+
+def test_the_compile_cache_tells_the_line_from_the_centreline(circle_line) -> None:
+    track, ref = circle_line
+    centre = build_problem(track, UNCOMPILED)
+    line = build_problem(ref, UNCOMPILED, SlipModel.for_vehicle(F1TENTH_GYM))
+    line_kinematic = build_problem(ref, UNCOMPILED)
+    assert centre.reference.kind == CENTRELINE and line.reference is ref
+    assert f"path={MIN_TIME_LINE}" in line.signature and "slip=" in line.signature
+    keys = {cache_key(p, UNCOMPILED.solver) for p in (centre, line, line_kinematic)}
+    assert len(keys) == 3
+    # the same problem twice gives the same key (a second start loads the compiled object)
+    again = build_problem(ref, UNCOMPILED, SlipModel.for_vehicle(F1TENTH_GYM))
+    assert cache_key(again, UNCOMPILED.solver) == cache_key(line, UNCOMPILED.solver)
+
+
+def test_the_slip_model_turns_on_a_wider_circle_and_is_the_paper_without_slip() -> None:
+    slip = SlipModel.for_vehicle(F1TENTH_GYM)
+    assert slip.wheelbase_m == pytest.approx(F1TENTH_GYM.wheelbase_m)
+    assert slip.understeer_s2pm > 0.0 and slip.rear_slip_s2pm > 0.0  # the gym car understeers
+    x, u = np.array([1.0, 2.0, 0.3, 5.0]), np.array([2.0, 0.1, 1.8])
+    paper = np.asarray(kinematic_bicycle(0.324)(x, u)).ravel()
+    same = np.asarray(kinematic_bicycle(9.0, SlipModel(0.324))(x, u)).ravel()
+    np.testing.assert_array_equal(paper, same)
+    # steady state: radius (L + K_us v^2) / tan(delta), the course turned outwards by alpha_r
+    v, delta, dt = 3.0, 0.25, 0.01
+    F = discretise(kinematic_bicycle(0.0, slip), dt, "rk4")
+    z = np.zeros(4)
+    pts = []
+    for _ in range(400):
+        z = step_numpy(F, z, np.array([v, delta, v]))
+        pts.append(z[: S.PHI])
+    pts = np.asarray(pts)
+    radius = (slip.wheelbase_m + slip.understeer_s2pm * v**2) / np.tan(delta)
+    # least-squares circle through the points (x^2 + y^2 + D x + E y + F = 0)
+    A = np.column_stack([pts, np.ones(len(pts))])
+    d, e, f = np.linalg.lstsq(A, -(pts**2).sum(axis=1), rcond=None)[0]
+    assert np.sqrt(d * d / 4 + e * e / 4 - f) == pytest.approx(radius, rel=1e-6)
+    xdot = np.asarray(kinematic_bicycle(0.0, slip)(np.zeros(4), [v, delta, v])).ravel()
+    course = np.arctan2(xdot[S.Y], xdot[S.X])
+    assert course == pytest.approx(-slip.rear_slip_s2pm * v**2 / radius, rel=1e-9)
+
+
+def test_velocity_references_follow_the_profile_at_each_predicted_stage(circle_line) -> None:
+    track, ref = circle_line
+    planner = Planner(track, UNCOMPILED, reference=ref)
+    assert planner.method == CIMPCC_LINE and planner.path is ref.path
+    start = ref.path.xy[0]
+    res = planner.step(float(start[0]), float(start[1]), float(ref.path.heading_rad[0]))
+    assert res.status == SOLVED
+    np.testing.assert_array_equal(res.beta, 1.0)
+    p = planner._parameters(np.zeros(7), res.beta, np.column_stack([[1.0] * 10, [2.0] * 10]))
+    layout = planner.problem.layout
+    np.testing.assert_array_equal(p[layout.slices["v_up"]], p[layout.slices["v_low"]])
+    np.testing.assert_array_equal(p[layout.slices["v_up"]][:4], [1.0, 2.0, 1.0, 2.0])
+    # the result's progress is the track's (the bench's and telemetry's bookkeeping), the
+    # plan's states are on the line
+    s_track, e_track = track.project(start)
+    assert res.s_m == pytest.approx(float(s_track), abs=1e-6)
+    assert res.e_con_m == pytest.approx(float(e_track), abs=1e-6)
+    assert res.states[0, S.PROGRESS] < 0.5 or res.states[0, S.PROGRESS] > ref.path.length_m - 0.5
+    # it makes a valid planner/plan record
+    plan = plan_message(res, 1.0, 0.9)
+    assert plan.method == CIMPCC_LINE and type(plan).decode(plan.encode()) == plan
+
+
+@pytest.mark.slow
+def test_on_a_circle_it_settles_on_the_line_at_the_profile_speed(circle_line) -> None:
+    """In the bench loop (the simulated car, its delays, a standing start on the centreline)
+    the car ends up on the line, at the minimum-time profile's steady-state speed."""
+    track, ref = circle_line
+    cfg = load_config(None)
+    planner = Planner(track, cfg.planner, method=CIMPCC_LINE, reference=ref)
+    poses: list[tuple[float, float]] = []
+    step = planner.step
+
+    def recording_step(x: float, y: float, yaw: float, on_command=None):
+        poses.append((x, y))
+        return step(x, y, yaw, on_command)
+
+    planner.step = recording_step  # type: ignore[method-assign]
+    run = run_method(CIMPCC_LINE, planner, track, cfg.simulator, LoopOptions(laps=3))
+    assert run.completed_laps == 3 and run.run_off_track_events == 0
+    last = slice(-40, None)  # the last 2 s
+    rear = np.hypot(*np.asarray(poses[last]).T)
+    line_r = float(np.hypot(*ref.path.xy.T).mean())
+    assert np.max(np.abs(rear - line_r)) < 0.02
+    v_line = float(ref.speed.v_mps.mean())
+    speed = np.asarray(run.trace.speed_mps[last])
+    assert np.max(np.abs(speed - v_line)) < 0.03 * v_line
+    command = np.asarray(run.trace.cmd_speed_mps[last])
+    assert np.all(command > v_line)  # it leads the speed by what the speed loop needs
+    assert run.laps[-1].lap_time_s == pytest.approx(ref.speed.lap_time_s, rel=0.02)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("where", ["paperlike", "map416"])
+def test_it_builds_and_races_a_clean_lap_in_the_bench(
+    where: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    """``racestack bench --methods cimpcc-line`` on the default track and on the paper's
+    (skipped without ../shared): a clean lap, well under the paper method's (13.27 s on
+    paperlike, 10.88 s on map416 in this simulator)."""
+    spec = "paperlike" if where == "paperlike" else str(request.getfixturevalue("shared_tracks")
+                                                         / "map416")
+    out = tmp_path / "out"
+    code = bench_main(["--track", spec, "--laps", "1", "--methods", CIMPCC_LINE, "--out",
+                       str(out), "--no-figures", "--no-reference"])
+    assert code == 0
+    m = json.loads((out / "results.json").read_text())["methods"][CIMPCC_LINE]
+    assert m["completed_laps"] == 1 and m["off_track_events_all"] == 0
+    cimpcc_lap_s = {"paperlike": 13.27, "map416": 10.88}[where]
+    assert m["lap_time_s"]["mean"] < 0.8 * cimpcc_lap_s
+
+
+def test_cimpcc_line_refuses_a_path_without_a_speed_profile() -> None:
+    with pytest.raises(ValueError, match="speed profile"):
+        Planner(circle(), UNCOMPILED, reference=build_problem(circle(), UNCOMPILED).reference)
+
+
+def test_make_planner_builds_the_method(circle_line) -> None:
+    track, _ = circle_line
+    planner = make_planner(track, UNCOMPILED, vehicle=F1TENTH_GYM)
+    assert isinstance(planner, Planner) and planner.method == CIMPCC_LINE
+    assert planner.reference.kind == MIN_TIME_LINE
+    x0 = planner.path.xy[5]
+    res = planner.step(float(x0[0]), float(x0[1]), float(planner.path.heading_rad[5]))
+    assert res.status == SOLVED and np.isfinite(res.command.speed_mps)
+    assert res.inputs.shape == (10, len(U))
