@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import optuna
+from optuna.exceptions import UpdateFinishedTrialError
 from optuna.trial import FrozenTrial, TrialState
 
 from services.tune.evaluate import TrialOutcome
@@ -201,6 +202,8 @@ class LoopReport:
     told: int = 0
     failed: int = 0
     interrupted: bool = False
+    #: trials another worker had finished first (a queued trial popped twice)
+    duplicates: int = 0
 
 
 class GracefulStop:
@@ -257,6 +260,38 @@ def _tell_outcome(
     return study.tell(trial, sc.value)
 
 
+def _run_one(
+    study: optuna.Study,
+    trial: optuna.Trial,
+    space: SearchSpace,
+    evaluate: Evaluate,
+    stop: GracefulStop,
+    me: str,
+    rep: LoopReport,
+) -> tuple[FrozenTrial | None, bool]:
+    """Evaluate and tell one asked trial; (its frozen record, whether a stop interrupted it)."""
+    trial.set_user_attr("worker", me)
+    params = suggest(trial, space)
+    t0 = time.perf_counter()
+    try:
+        with stop.racing():
+            out = evaluate(params)
+    except KeyboardInterrupt:
+        trial.set_user_attr("error", "interrupted")
+        trial.set_user_attr("interrupted", True)
+        study.tell(trial, state=TrialState.FAIL)
+        rep.interrupted = True
+        return None, True
+    except Exception as exc:  # a crashing trial is a FAILED trial, not a crash
+        trial.set_user_attr("wall_s", round(time.perf_counter() - t0, 3))
+        trial.set_user_attr("error", _one_line(exc))
+        frozen = study.tell(trial, state=TrialState.FAIL)
+        rep.failed += 1
+        return frozen, False
+    trial.set_user_attr("wall_s", round(time.perf_counter() - t0, 3))
+    return _tell_outcome(study, trial, space, out), False
+
+
 def run_trials(
     study: optuna.Study,
     space: SearchSpace,
@@ -275,26 +310,15 @@ def run_trials(
         if done + running >= budget:
             break
         trial = study.ask()
-        trial.set_user_attr("worker", me)
-        params = suggest(trial, space)
-        t0 = time.perf_counter()
         try:
-            with stop.racing():
-                out = evaluate(params)
-        except KeyboardInterrupt:
-            trial.set_user_attr("error", "interrupted")
-            trial.set_user_attr("interrupted", True)
-            study.tell(trial, state=TrialState.FAIL)
-            rep.interrupted = True
+            frozen, stopped = _run_one(study, trial, space, evaluate, stop, me, rep)
+        except UpdateFinishedTrialError:
+            # two workers popped the same queued trial (SQLite has no row locks): the
+            # other one finished it first; this result is dropped, nothing is lost
+            rep.duplicates += 1
+            continue
+        if stopped:
             break
-        except Exception as exc:  # a crashing trial is a FAILED trial, not a crash
-            trial.set_user_attr("wall_s", round(time.perf_counter() - t0, 3))
-            trial.set_user_attr("error", _one_line(exc))
-            frozen = study.tell(trial, state=TrialState.FAIL)
-            rep.failed += 1
-        else:
-            trial.set_user_attr("wall_s", round(time.perf_counter() - t0, 3))
-            frozen = _tell_outcome(study, trial, space, out)
         rep.told += 1
         if report is not None:
             report(frozen)
