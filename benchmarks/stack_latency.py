@@ -32,10 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from services.launcher.supervisor import Supervisor, free_loopback_port, service_argv
+from services.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import DriveCmd, Odom, Plan, Pose, State
+from shared.net import free_loopback_port
 from shared.track import load_track
 
 SERVICES = ("localization_bridge", "planner")

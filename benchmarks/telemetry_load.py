@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import psutil
 
-from services.launcher.supervisor import free_loopback_port
+from shared.net import free_loopback_port
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Wait for the telemetry process to come up [s].

@@ -39,11 +39,12 @@ from typing import Any
 
 import numpy as np
 
-from services.launcher.supervisor import free_loopback_port, stop_process
+from services.launcher.supervisor import stop_process
 from shared.bus import Bus
 from shared.config import load_config
 from shared.config.vesc import VescSettings
 from shared.messages import DriveCmd
+from shared.net import free_loopback_port
 from shared.vesc.fake_pty import FakeVesc
 from shared.vesc.protocol import CommandId
 

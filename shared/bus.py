@@ -1,7 +1,8 @@
 """Zenoh helpers for the service shells (the only shared module that imports zenoh).
 
-A service shell opens one ``Bus`` for its lifetime, declares typed publishers and
-subscriptions, and runs its own loop; the maths never sees Zenoh or raw bytes::
+A service shell opens one ``Bus`` for its lifetime (through the service base,
+``shared.service.Service``), declares typed publishers and subscriptions, and runs its own
+loop; the maths never sees Zenoh or raw bytes::
 
     with Bus(cfg.bus, "planner") as bus:              # closes the session, always
         cmd_pub = bus.publisher(bus.keys.drive_cmd, DriveCmd)
@@ -49,7 +50,7 @@ import zenoh
 
 from shared.config.bus import BusSettings, Mode
 from shared.keys import Keys, check_chunk
-from shared.messages import Message, MessageError, decode, decode_any
+from shared.messages import LogLevelName, Message, MessageError, decode, decode_any
 
 log = logging.getLogger("racestack.bus")
 
@@ -826,8 +827,10 @@ class DropReporter:
         period_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
         publisher: TypedPublisher[Any] | None = None,
+        wall_clock: Callable[[], float] = time.time,
     ) -> None:
-        """`publisher`: the service's own ``events/log`` publisher, so one sequence of
+        """`clock`: when reports are due [s]; `wall_clock`: the records' stamps [s];
+        `publisher`: the service's own ``events/log`` publisher, so one sequence of
         numbers covers all its log records (None: declare one)."""
         from shared.messages import LogEvent
 
@@ -835,6 +838,7 @@ class DropReporter:
         self._service = service
         self._period = period_s
         self._clock = clock
+        self._wall = wall_clock
         self._pub = publisher or bus.publisher(bus.keys.events_log, LogEvent)
         self._event = LogEvent
         self._last: dict[tuple[str, str], int] = {}
@@ -851,7 +855,7 @@ class DropReporter:
 
     def _publish(self, level: str, text: str) -> None:
         self._pub.put(
-            self._event(stamp_s=time.time(), level=level, source=self._service, text=text[:900])
+            self._event(stamp_s=self._wall(), level=level, source=self._service, text=text[:900])
         )
         self.reports += 1
 
@@ -866,14 +870,16 @@ class DropReporter:
         n, parts = self._growth(snap, self._last)
         if n:
             self._last = snap
-            self._publish("warning", f"rejected {n} messages (total {sum(snap.values())}): {parts}")
+            total = sum(snap.values())
+            self._publish(LogLevelName.WARNING, f"rejected {n} messages (total {total}): {parts}")
             published = True
         faults = self._bus.faults.snapshot()
         n, parts = self._growth(faults, self._last_faults)
         if n:
             self._last_faults = faults
             self._publish(
-                "error", f"own faults: {n} (total {sum(faults.values())}), not published: {parts}"
+                LogLevelName.ERROR,
+                f"own faults: {n} (total {sum(faults.values())}), not published: {parts}",
             )
             published = True
         return published

@@ -9,7 +9,9 @@ once) and counts those it holds back, so the next line can say how many were sup
         log.warning("port lost (%d more since the last report)", suppressed)
 
 Not thread-safe; one thread (or the caller's lock) per limiter. For several kinds of events
-use one limiter per kind (e.g. a ``dict[str, RateLimiter]``).
+use one limiter per kind (e.g. a ``dict[str, RateLimiter]``; ``shared.service.Service.say``
+keeps one per kind). Built on it: ``EpisodeLimiter`` (start/end pairs such as a port lost and
+back) and ``GrowthLimiter`` (a growing total reported at most once per interval).
 """
 
 from __future__ import annotations
@@ -51,3 +53,51 @@ class RateLimiter:
     def ready(self, now: float) -> bool:
         """Whether an event at ``now`` [s] would be allowed (changes nothing)."""
         return now - self.last_s >= self.interval_s
+
+
+class EpisodeLimiter:
+    """Rate limit of start/end event pairs (a port lost / back, braking / resumed).
+
+    A start is reported when ``interval_s`` [s] passed since the last reported start (a
+    ``RateLimiter``), else it is suppressed and counted; its end is reported only if its
+    start was, so the last reported line always tells the current state.
+    """
+
+    def __init__(self, interval_s: float) -> None:
+        """Create the limiter; ``interval_s`` [s] between two reported starts."""
+        self._limit = RateLimiter(interval_s)
+        self._open_reported = False
+
+    @property
+    def suppressed(self) -> int:
+        """Starts suppressed since the last reported one."""
+        return self._limit.suppressed
+
+    def start(self, now: float) -> int | None:
+        """A start at ``now`` [s]: the number of suppressed starts before it if it is to be
+        reported (they are then cleared), or None when this one is suppressed."""
+        allowed, suppressed = self._limit.allow(now)
+        self._open_reported = allowed
+        return suppressed if allowed else None
+
+    def end(self) -> bool:
+        """The matching end: True if it is to be reported."""
+        reported, self._open_reported = self._open_reported, False
+        return reported
+
+
+class GrowthLimiter:
+    """Reports a growing total at most every ``interval_s`` [s] (the first growth at once)."""
+
+    def __init__(self, interval_s: float) -> None:
+        """Create the limiter; ``interval_s`` [s] between two reports (a ``RateLimiter``)."""
+        self._limit = RateLimiter(interval_s)
+        self.reported = 0  #: the total of the last report
+
+    def check(self, total: int, now: float) -> bool:
+        """True when ``total`` grew since the last report and the interval has passed."""
+        if total > self.reported and self._limit.ready(now):
+            self._limit.allow(now)
+            self.reported = total
+            return True
+        return False

@@ -1,189 +1,22 @@
-"""What a bench run produces: per-lap records, traces, and the results.json document.
+"""Moved to ``shared.evaluation.results`` (the bench, the telemetry report and the launcher
+share it); re-exported here so the bench's imports keep working."""
 
-``results.json`` has this shape (extra keys allowed)::
+from shared.evaluation.results import (
+    LapRecord,
+    MethodRun,
+    Trace,
+    method_json,
+    results_document,
+    solve_time_stats,
+    write_results,
+)
 
-    {"track": str, "track_length_m": float,
-     "methods": {NAME: {"laps": [{"lap_time_s", "mean_speed_mps", "off_track_events",
-                                  "max_abs_e_con_m"}, ...],
-                        "lap_time_s": {"max", "min", "mean"},
-                        "mean_speed_mps": {"max", "min", "mean"},
-                        "solve_time_ms": {"median", "p95", "p99", "max"},
-                        "solver_failures": int, "completed_laps": int,
-                        "ratio_to_min_time": float | None}},
-     "reference": {"min_time_lap_s", "v_max_mps", ...}}
-
-``reference`` (when the bench computed it) is the minimum-time lap of the simulator's car
-(``services.planner.mintime``); each method's ``ratio_to_min_time`` is its mean lap time
-over that lap (1.0 would be the physical limit; below 1 is a bug).
-"""
-
-from __future__ import annotations
-
-import json
-import math
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
-
-import numpy as np
-
-
-@dataclass(frozen=True)
-class LapRecord:
-    """One timed lap.
-
-    Attributes:
-        lap_time_s: lap time [s].
-        mean_speed_mps: lap length / lap time [m/s] (the paper's "velocity" of a lap).
-        off_track_events: times the footprint left the track during the lap.
-        max_abs_e_con_m: largest |contour error| of the car during the lap [m].
-    """
-
-    lap_time_s: float
-    mean_speed_mps: float
-    off_track_events: int
-    max_abs_e_con_m: float
-
-    def to_json(self) -> dict[str, Any]:
-        """The lap as a JSON object."""
-        return {
-            "lap_time_s": self.lap_time_s,
-            "mean_speed_mps": self.mean_speed_mps,
-            "off_track_events": self.off_track_events,
-            "max_abs_e_con_m": self.max_abs_e_con_m,
-        }
-
-
-@dataclass
-class Trace:
-    """Time series of a run, one row per planner tick (arrays of equal length).
-
-    Attributes:
-        t_s: simulation time [s]; s_m: progress along the centreline in [0, L) [m];
-        x_m, y_m: car position [m]; speed_mps: measured speed [m/s];
-        cmd_speed_mps: commanded speed [m/s]; e_con_m: contour error [m];
-        beta: beta at the car; lap: index of the lap the row belongs to (0 = out lap).
-    """
-
-    t_s: list[float] = field(default_factory=list)
-    s_m: list[float] = field(default_factory=list)
-    x_m: list[float] = field(default_factory=list)
-    y_m: list[float] = field(default_factory=list)
-    speed_mps: list[float] = field(default_factory=list)
-    cmd_speed_mps: list[float] = field(default_factory=list)
-    e_con_m: list[float] = field(default_factory=list)
-    beta: list[float] = field(default_factory=list)
-    lap: list[int] = field(default_factory=list)
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """Every column as a numpy array."""
-        return {k: np.asarray(v) for k, v in self.__dict__.items()}
-
-
-@dataclass
-class MethodRun:
-    """Everything one method produced in a bench run."""
-
-    name: str
-    laps: list[LapRecord]
-    trace: Trace
-    solve_times_ms: list[float]
-    solver_failures: int
-    requested_laps: int
-    extra: dict[str, Any] = field(default_factory=dict)
-    #: every time the footprint left the track in the whole run: the out lap, the timed
-    #: laps and a lap cut short (a method lost in its out lap has no timed lap to count it)
-    run_off_track_events: int = 0
-    #: of those, before the first timed lap started
-    out_lap_off_track_events: int = 0
-
-    @property
-    def completed_laps(self) -> int:
-        """Timed laps completed."""
-        return len(self.laps)
-
-
-def _stats(values: list[float]) -> dict[str, float | None]:
-    if not values:
-        return {"max": None, "min": None, "mean": None}
-    return {"max": max(values), "min": min(values), "mean": float(np.mean(values))}
-
-
-def solve_time_stats(times_ms: list[float]) -> dict[str, float | None]:
-    """median / p95 / p99 / max of solve times [ms]."""
-    if not times_ms:
-        return {"median": None, "p95": None, "p99": None, "max": None}
-    t = np.asarray(times_ms)
-    return {
-        "median": float(np.median(t)),
-        "p95": float(np.percentile(t, 95)),
-        "p99": float(np.percentile(t, 99)),
-        "max": float(t.max()),
-    }
-
-
-def method_json(run: MethodRun) -> dict[str, Any]:
-    """The results.json entry of one method."""
-    return {
-        "laps": [lap.to_json() for lap in run.laps],
-        "lap_time_s": _stats([lap.lap_time_s for lap in run.laps]),
-        "mean_speed_mps": _stats([lap.mean_speed_mps for lap in run.laps]),
-        "solve_time_ms": solve_time_stats(run.solve_times_ms),
-        "solver_failures": run.solver_failures,
-        "completed_laps": run.completed_laps,
-        "requested_laps": run.requested_laps,
-        "off_track_events": sum(lap.off_track_events for lap in run.laps),
-        "off_track_events_all": run.run_off_track_events,
-        "out_lap_off_track_events": run.out_lap_off_track_events,
-        **run.extra,
-    }
-
-
-def results_document(
-    track_name: str,
-    track_length_m: float,
-    runs: list[MethodRun],
-    meta: dict[str, Any] | None = None,
-    reference: dict[str, Any] | None = None,
-) -> dict[str, Any]:
-    """The whole results.json document.
-
-    Args:
-        reference: the minimum-time lap (``min_time_lap_s`` [s], ``v_max_mps`` [m/s], ...);
-            adds ``reference`` and each method's ``ratio_to_min_time`` = mean lap /
-            ``min_time_lap_s`` (None without laps).
-    """
-    doc: dict[str, Any] = {
-        "track": track_name,
-        "track_length_m": track_length_m,
-        "methods": {run.name: method_json(run) for run in runs},
-    }
-    if reference is not None:
-        doc["reference"] = dict(reference)
-        limit = float(reference["min_time_lap_s"])
-        for entry in doc["methods"].values():
-            mean = entry["lap_time_s"]["mean"]
-            entry["ratio_to_min_time"] = None if mean is None else mean / limit
-    if meta:
-        doc["meta"] = meta
-    return doc
-
-
-def _clean(obj: Any) -> Any:
-    """JSON-safe copy: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def write_results(path: Path, doc: dict[str, Any]) -> None:
-    """Write results.json atomically (a crash never leaves half a file)."""
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(_clean(doc), indent=2) + "\n", encoding="utf-8")
-    tmp.replace(path)
+__all__ = [
+    "LapRecord",
+    "MethodRun",
+    "Trace",
+    "method_json",
+    "results_document",
+    "solve_time_stats",
+    "write_results",
+]

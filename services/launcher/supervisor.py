@@ -11,7 +11,6 @@ from __future__ import annotations
 import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -41,14 +40,6 @@ class Child:
     def exit_code(self) -> int | None:
         """The exit code, or None while it runs."""
         return self.process.poll()
-
-
-def free_loopback_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago (bound to port 0, then released),
-    for the endpoints of processes started by tests and benchmarks."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def stop_process(proc: subprocess.Popen, grace_s: float = 10.0) -> int | None:

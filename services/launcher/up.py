@@ -15,18 +15,42 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from services.bench.results import LapRecord, MethodRun, Trace, results_document
-from services.bench.table import format_table
 from services.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import RacestackConfig
-from shared.messages import LapEvent, LogEvent, Plan, SimControl
+from shared.evaluation import LapRecord, MethodRun, Trace, format_table, results_document
+from shared.keys import EVENTS_LOG, LAP, PLAN, SIM_CONTROL
+from shared.messages import (
+    LapEvent,
+    LapKindName,
+    LogEvent,
+    LogLevelName,
+    Plan,
+    SimActionName,
+    SimControl,
+)
+from shared.service import Service, publishes, subscribes
 from shared.track import load_track
 
 log = logging.getLogger(__name__)
 
 #: The services `racestack up` starts, in start order.
 STACK = ("simulator", "localization_bridge", "planner", "telemetry")
+
+
+class Launcher(Service):
+    """The launcher on the bus: it hosts the router (the hub), watches laps, solve times and
+    warnings, and resets the simulator at the start."""
+
+    NAME = "launcher"
+    LISTEN_DEFAULT = True
+    MODE = "router"
+    PORTS = (
+        subscribes(LAP, LapEvent),
+        subscribes(PLAN, Plan),
+        subscribes(EVENTS_LOG, LogEvent),
+        publishes(SIM_CONTROL, SimControl),
+    )
 
 
 @dataclass
@@ -54,14 +78,16 @@ def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) 
     )
     laps: list[LapRecord] = []
     with (
-        Bus(cfg.bus, "launcher", listen_default=True, mode="router") as bus,
+        Launcher.open_bus(cfg.bus) as bus,
         Supervisor(log_dir=run_dir / "logs") as sup,
     ):
-        lap_events = bus.subscribe(bus.keys.lap, LapEvent, queue_size=1000)
+        node = Launcher(bus)
+        lap_events = node.subscribe(LAP, queue_size=1000)
         solve_ms: list[float] = []  # appended on the Zenoh thread (list.append is atomic)
-        bus.subscribe(bus.keys.plan, Plan, callback=lambda p: solve_ms.append(p.solve_time_ms))
-        logs = bus.subscribe(bus.keys.events_log, LogEvent, queue_size=1000)
-        control = bus.publisher(bus.keys.sim_control, SimControl)
+        node.subscribe(PLAN, lambda p: solve_ms.append(p.solve_time_ms))
+        logs = node.subscribe(EVENTS_LOG, queue_size=1000)
+        control = node.publisher(SIM_CONTROL)
+        node.announce()
         for name in opts.services:
             extra = list(opts.telemetry_args) if name == "telemetry" else []
             if name == "telemetry":
@@ -78,7 +104,7 @@ def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) 
             return _report_failure(sup, bus, opts, "start")
         print("all services alive: racing", flush=True)
         control.wait_matching(5.0)
-        control.put(SimControl(stamp_s=time.time(), action="reset"))
+        control.put(SimControl(stamp_s=time.time(), action=SimActionName.RESET))
         last_progress = time.monotonic()
         while len(laps) < opts.laps:
             if stop_requested():
@@ -89,7 +115,7 @@ def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) 
                 return _report_failure(sup, bus, opts, "race")
             for ev in lap_events.drain():
                 last_progress = time.monotonic()
-                if ev.kind == "lap" and ev.lap_time_s is not None:
+                if ev.kind == LapKindName.LAP and ev.lap_time_s is not None:
                     laps.append(
                         LapRecord(
                             ev.lap_time_s,
@@ -104,10 +130,10 @@ def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) 
                         f"max |e_con| {ev.max_abs_e_con_m or 0.0:.3f} m",
                         flush=True,
                     )
-                elif ev.kind == "off_track":
+                elif ev.kind == LapKindName.OFF_TRACK:
                     print(f"off track at lap {ev.lap}", flush=True)
             for msg in logs.drain():
-                if msg.level in ("warning", "error"):
+                if msg.level in (LogLevelName.WARNING, LogLevelName.ERROR):
                     print(f"[{msg.source}] {msg.level}: {msg.text}", flush=True)
             if time.monotonic() - last_progress > opts.lap_timeout_s:
                 print(f"no lap event for {opts.lap_timeout_s:.0f} s: giving up", flush=True)

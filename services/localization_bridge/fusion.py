@@ -4,7 +4,8 @@
 ``State`` the planner consumes: position and yaw from the pose (rear axle, map frame), speed
 and steering from the wheel odometry, yaw rate from the IMU (or odometry). The state's
 ``source_stamp_s`` is the pose's capture stamp, so consumers can judge its age. A pose is
-the only trigger; odometry or IMU older than ``max_input_age_s`` is not used.
+the only trigger; odometry or IMU older than ``max_input_age_s`` is not used. The tuning is
+the ``[localization]`` section (``shared.config.localization.LocalizationSettings``).
 
 Latency compensation: a pose describes the car at its capture instant, which is already
 20-50 ms old when it arrives (localiser latency plus its rate). The state is the pose
@@ -22,8 +23,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from shared.config.localization import LocalizationSettings
 from shared.messages import Imu, Odom, Pose, State
 from shared.messages.records import MAX_POS_M
+
+_DEFAULTS = LocalizationSettings()
 
 
 @dataclass
@@ -35,10 +39,17 @@ class StateAssembler:
         max_prediction_s: longest forward prediction of a pose [s] (0 disables it).
     """
 
-    max_input_age_s: float = 0.25
-    max_prediction_s: float = 0.1
+    max_input_age_s: float = _DEFAULTS.max_input_age_s
+    max_prediction_s: float = _DEFAULTS.max_prediction_s
     odom: Odom | None = None
     imu: Imu | None = None
+
+    @classmethod
+    def from_settings(cls, settings: LocalizationSettings) -> StateAssembler:
+        """An assembler tuned by the ``[localization]`` section."""
+        return cls(
+            max_input_age_s=settings.max_input_age_s, max_prediction_s=settings.max_prediction_s
+        )
 
     def on_odom(self, msg: Odom) -> None:
         """Remember the newest wheel odometry."""

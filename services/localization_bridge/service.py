@@ -1,59 +1,67 @@
 """The localization bridge service: ``vehicle/pose``, ``vehicle/imu``, ``vehicle/odom`` in,
 ``state`` out (one State per pose, published as soon as the pose arrives, by a worker
-thread blocked on the pose channel).
+thread blocked on the pose channel). Tuning: ``[localization]``.
 
 A State of its own that fails validation is not sent: it is counted in ``bus.faults`` and
-reported on ``events/log`` (``DropReporter``), and the next pose is relayed as usual."""
+reported on ``events/log`` (the service base's ``DropReporter``), and the next pose is
+relayed as usual."""
 
 from __future__ import annotations
 
 import argparse
-import logging
 import threading
-import time
-from collections.abc import Sequence
 
 from services.localization_bridge.fusion import StateAssembler
-from shared.bus import Bus, DropReporter
+from shared.bus import Bus
 from shared.config import RacestackConfig
-from shared.messages import Imu, Odom, Pose, State
-from shared.service_shell import Worker, run_service
-
-log = logging.getLogger(__name__)
-SERVICE = "localization_bridge"
-
-
-def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
-    """The service body: a worker turns each pose into a state at once; IMU/odom only
-    update the core (on Zenoh's threads); the main thread reports drops."""
-    core = StateAssembler()
-    with Bus(cfg.bus, SERVICE) as bus:
-        state_pub = bus.publisher(bus.keys.state, State)
-        poses = bus.subscribe_channel(bus.keys.pose, Pose)
-        bus.subscribe(bus.keys.odom, Odom, callback=core.on_odom)
-        bus.subscribe(bus.keys.imu, Imu, callback=core.on_imu)
-        drops = DropReporter(bus, SERVICE)
-
-        def relay() -> None:
-            first = True
-            while (pose := poses.recv()) is not None:
-                with bus.faults.guard(bus.keys.state):  # counted and reported, never raised
-                    state_pub.put(core.on_pose(pose, time.time()))
-                if first:
-                    log.info("first pose received; publishing %s", bus.keys.state)
-                    first = False
-
-        worker = Worker(
-            "bridge-poses", relay, stop, faults=bus.faults, fault_key=bus.keys.state
-        ).start()
-        log.info("ready; waiting for %s", bus.keys.pose)
-        while not stop.wait(0.2):
-            drops.poll()
-        log.info("stopping")
-    worker.join(timeout_s=2.0)  # the closed bus ends it; re-raises if it crashed
-    return 0
+from shared.config.localization import LocalizationSettings
+from shared.keys import EVENTS_LOG, IMU, ODOM, POSE, STATE
+from shared.messages import Imu, LogEvent, Odom, Pose, State
+from shared.service import Service, publishes, subscribes
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m services.localization_bridge``."""
-    return run_service(SERVICE, argv, run, description=__doc__.splitlines()[0])
+class BridgeService(Service):
+    """A worker turns each pose into a state at once; IMU and odometry only update the core
+    (on Zenoh's threads); the main thread is the base's watchdog (reports)."""
+
+    NAME = "localization_bridge"
+    PORTS = (
+        subscribes(POSE, Pose),
+        subscribes(ODOM, Odom),
+        subscribes(IMU, Imu),
+        publishes(STATE, State),
+        publishes(EVENTS_LOG, LogEvent),
+    )
+
+    def __init__(self, bus: Bus, settings: LocalizationSettings) -> None:
+        super().__init__(bus, period_s=settings.check_period_s)
+        self.core = StateAssembler.from_settings(settings)
+        self.state_pub = self.publisher(STATE)
+        self.poses = self.subscribe_channel(POSE, capacity=settings.pose_queue)
+        self.subscribe(ODOM, self.core.on_odom)
+        self.subscribe(IMU, self.core.on_imu)
+
+    @classmethod
+    def create(cls, cfg: RacestackConfig, args: argparse.Namespace, bus: Bus) -> BridgeService:
+        """The bridge with the ``[localization]`` settings."""
+        return cls(bus, cfg.localization)
+
+    def relay(self) -> None:
+        """The worker loop: one State per pose, until the bus closes."""
+        first = True
+        state_key = self.state_pub.key
+        while (pose := self.poses.recv()) is not None:
+            with self.bus.faults.guard(state_key):  # counted and reported, never raised
+                self.state_pub.put(self.core.on_pose(pose, self.wall_clock()))
+            if first:
+                self.log.info("first pose received; publishing %s", state_key)
+                first = False
+
+    def serve(self, stop: threading.Event) -> int:
+        """Start the relay worker, then watch until `stop`."""
+        self.start_worker("bridge-poses", self.relay, stop, fault_key=self.state_pub.key)
+        self.log.info("ready; waiting for %s", self.poses.key)
+        return super().serve(stop)
+
+
+main = BridgeService.main

@@ -42,12 +42,17 @@ from services.planner.solver import SolverHandle, make_solver
 from shared.config.planner import CurvatureSettings, MethodWeights, PlannerSettings
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
 from shared.curvature import CurvatureProfile, track_profile
+from shared.messages.vocab import PlanStatusName
 from shared.track import Track
 
-#: Status of a result: a fresh solution, the shifted previous plan, or a braking command.
-SOLVED, FALLBACK, BRAKING = "solved", "fallback", "braking"
-#: The car is lost (spun or far off the track): the recovery rule drives, not the method.
-RECOVERING = "recovering"
+#: Status of a result: a fresh solution, the shifted previous plan, or a braking command;
+#: RECOVERING: the car is lost (spun or far off the track), the recovery rule drives.
+SOLVED, FALLBACK, BRAKING, RECOVERING = (
+    PlanStatusName.SOLVED,
+    PlanStatusName.FALLBACK,
+    PlanStatusName.BRAKING,
+    PlanStatusName.RECOVERING,
+)
 #: A solved command slower than this [m/s] counts as holding the car still (recovery).
 STILL_SPEED_MPS = 0.1
 #: Half-width of the arc-length window searched around the previous projection when the

@@ -186,11 +186,6 @@ class OcpProblem:
     signature: str
     reference: ReferencePath
 
-    @property
-    def n_w(self) -> int:
-        """Number of decision variables."""
-        return self.horizon * (NXA + NUA) + NXA
-
     def state_index(self, k: int) -> slice:
         """Slice of xa_k in w."""
         i = k * (NXA + NUA)

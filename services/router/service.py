@@ -7,32 +7,29 @@ same endpoint (docker compose).
 
 from __future__ import annotations
 
-import argparse
-import logging
-import threading
-from collections.abc import Sequence
-
 from shared.bus import Bus
-from shared.config import RacestackConfig
-from shared.service_shell import run_service
-
-log = logging.getLogger(__name__)
-SERVICE = "router"
+from shared.service import Service
 
 
-def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
-    """Hold a router session open until stopped."""
-    with Bus(cfg.bus, SERVICE, listen_default=True, mode="router") as bus:
-        log.info("router listening on %s", ", ".join(cfg.bus.listen))
-        seen: frozenset[str] = frozenset()
-        while not stop.wait(0.5):
-            alive = bus.alive()
-            if alive != seen:
-                log.info("services alive: %s", ", ".join(sorted(alive)) or "none")
-                seen = alive
-    return 0
+class Router(Service):
+    """Holds a router session open and logs which services come and go."""
+
+    NAME = "router"
+    LISTEN_DEFAULT = True
+    MODE = "router"
+    PERIOD_S = 0.5
+
+    def __init__(self, bus: Bus) -> None:
+        super().__init__(bus)
+        self.seen: frozenset[str] = frozenset()
+        self.log.info("router listening on %s", ", ".join(bus.settings.listen))
+
+    def tick(self) -> None:
+        """Log the set of live services when it changed."""
+        alive = self.bus.alive()
+        if alive != self.seen:
+            self.log.info("services alive: %s", ", ".join(sorted(alive)) or "none")
+            self.seen = alive
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m services.router``."""
-    return run_service(SERVICE, argv, run, description=__doc__.splitlines()[0])
+main = Router.main

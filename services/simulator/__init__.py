@@ -26,7 +26,15 @@ from services.simulator.sensors import (
     SensorReadings,
     SensorSuite,
 )
-from services.simulator.state import NX, Command, Pose2D, StateIndex, VehicleState, wrap_angle
+from services.simulator.state import (
+    NX,
+    Command,
+    Pose2D,
+    StateIndex,
+    VehicleState,
+    rear_axle,
+    wrap_angle,
+)
 from services.simulator.vehicle import Simulator, StepResult
 
 __all__ = [
@@ -55,6 +63,7 @@ __all__ = [
     "VehicleState",
     "centreline_pose",
     "distance_transform",
+    "rear_axle",
     "rk4_step",
     "speed_control",
     "steering_control",

@@ -24,14 +24,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
 from services.simulator.state import Pose2D
+from shared.car import CAR
+from shared.messages.vocab import LapKindName
 from shared.track.geometry import Track
-
-LapEventKind = Literal["start", "lap", "off_track", "back_on_track"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,7 +51,7 @@ class LapEvent:
         mean_car_speed_mps: ``lap`` only: time-weighted mean of the fed speed [m/s].
     """
 
-    kind: LapEventKind
+    kind: LapKindName
     t_s: float
     s_m: float
     lap: int
@@ -135,7 +134,11 @@ class LapTimer:
     """
 
     def __init__(
-        self, track: Track, width_m: float = 0.31, length_m: float = 0.58, window_m: float = 1.0
+        self,
+        track: Track,
+        width_m: float = CAR.width_m,
+        length_m: float = CAR.length_m,
+        window_m: float = 1.0,
     ) -> None:
         if not (width_m > 0.0 and length_m > 0.0 and window_m > 0.0):
             raise ValueError("width_m, length_m and window_m must be > 0")
@@ -228,7 +231,7 @@ class LapTimer:
         corners_out = bool(((e[1:] > w_r[1:]) | (e[1:] < -w_l[1:])).any())
         if corners_out != self.off_track:
             self.off_track = corners_out
-            kind: LapEventKind = "off_track" if corners_out else "back_on_track"
+            kind = LapKindName.OFF_TRACK if corners_out else LapKindName.BACK_ON_TRACK
             if corners_out:
                 self._lap_off_count += 1
             out.append(
@@ -254,12 +257,12 @@ class LapTimer:
 
     def _cross_line(self, t_cross: float) -> LapEvent:
         if self.lap_start_s is None:
-            event = LapEvent("start", t_cross, 0.0, 0)
+            event = LapEvent(LapKindName.START, t_cross, 0.0, 0)
         else:
             self.laps_completed += 1
             lap_time = t_cross - self.lap_start_s
             event = LapEvent(
-                "lap",
+                LapKindName.LAP,
                 t_cross,
                 0.0,
                 self.laps_completed,

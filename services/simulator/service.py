@@ -23,49 +23,54 @@ Nothing it publishes is outside its own contract, and it never dies of its own o
   ``FAULT_REPORT_INTERVAL_S``, with the number of resets since the last line). A slip
   angle outside the core's canonical [-pi/2, pi/2] is counted (reason ``slip_not_canonical``)
   and published wrapped; it is the same velocity direction, so the car goes on.
+
+When the car's footprint leaves the track, ``[simulator] off_track_policy`` decides:
+``"continue"`` (default) keeps driving; ``"stop"`` ignores drive commands from then on, so
+the command timeout brakes the car to rest like a VESC whose commands stopped, until a
+``sim/control`` "reset" or "resume"; ``"reset_to_centreline"`` puts the car back on the
+centreline at its projection, at rest, heading along the track (a marshal). Each is counted
+(``off_track_actions``) and said on ``events/log``.
+
+The shell is a ``shared.service.Service`` (ports in ``SimulatorService.PORTS``); its main
+thread is the real-time loop (``serve``), which also polls the drop and fault reports.
 """
 
 from __future__ import annotations
 
 import argparse
-import logging
 import math
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from services.simulator import LapTimer, SensorSuite, Simulator, StepResult, VehicleState
+from services.simulator import LapEvent as TimerEvent
+from services.simulator import LapTimer, SensorSuite, Simulator, StepResult
 from services.simulator.laps import centreline_pose
+from services.simulator.limits import state_fault, wrap_pi
 from services.simulator.vesc_actuation import VescActuation
-from shared.bus import Bus, DropReporter, LatestSlot
+from shared.bus import Bus, LatestSlot
 from shared.config import RacestackConfig
+from shared.keys import DRIVE_CMD, EVENTS_LOG, IMU, LAP, ODOM, POSE, SCAN, SIM_CONTROL, SIM_TRUTH
 from shared.messages import (
     DriveCmd,
     Imu,
     LapEvent,
+    LapKindName,
     LogEvent,
+    LogLevelName,
     Odom,
     Pose,
     Scan,
+    SimActionName,
     SimControl,
     SimTruth,
 )
-from shared.messages.codec import MAX_STR_LEN
-from shared.messages.records import (
-    MAX_POS_M,
-    MAX_SPEED_MPS,
-    MAX_STEER_RAD,
-    MAX_YAW_RATE_RADPS,
-)
-from shared.ratelimit import RateLimiter
-from shared.service_shell import run_service
+from shared.service import Service, publishes, subscribes
 from shared.track import OccupancyGrid, Track, load_ros_map, load_track, rasterize_track
 
-log = logging.getLogger(__name__)
-SERVICE = "simulator"
 #: Rate of ``sim/truth`` [Hz].
 TRUTH_RATE_HZ = 50.0
 #: Where the car starts: this far along from the start line [m] (behind it: timing starts
@@ -82,39 +87,6 @@ _HALF_PI = 0.5 * math.pi
 _SLIP_SLACK_RAD = 1e-9
 
 
-def wrap_pi(a: float) -> float:
-    """Angle `a` [rad] wrapped into [-pi, pi] (the contract's range of wrapped angles)."""
-    return math.remainder(a, math.tau)
-
-
-def state_fault(st: VehicleState) -> tuple[str, str] | None:
-    """Why the car's state is outside the message contract, as (reason, detail), or None.
-
-    Checked: every element finite, position within ``MAX_POS_M`` [m], speed within
-    ``MAX_SPEED_MPS`` [m/s], yaw rate within ``MAX_YAW_RATE_RADPS`` [rad/s], steering within
-    ``MAX_STEER_RAD`` [rad]. Yaw and slip are angles: the records wrap them, so they are not
-    checked here.
-    """
-    vals = st.as_tuple()
-    if not all(math.isfinite(v) for v in vals):
-        return "not_finite", f"non-finite state {vals}"
-    if abs(st.x_m) > MAX_POS_M or abs(st.y_m) > MAX_POS_M:
-        return "position_out_of_range", (
-            f"position ({st.x_m:.1f}, {st.y_m:.1f}) m beyond {MAX_POS_M:g} m"
-        )
-    if abs(st.v_mps) > MAX_SPEED_MPS:
-        return "speed_out_of_range", f"speed {st.v_mps:.2f} m/s beyond {MAX_SPEED_MPS:g} m/s"
-    if abs(st.yaw_rate_radps) > MAX_YAW_RATE_RADPS:
-        return "yaw_rate_out_of_range", (
-            f"yaw rate {st.yaw_rate_radps:.2f} rad/s beyond {MAX_YAW_RATE_RADPS:g} rad/s"
-        )
-    if abs(st.delta_rad) > MAX_STEER_RAD:
-        return "steering_out_of_range", (
-            f"steering {st.delta_rad:.3f} rad beyond {MAX_STEER_RAD:g} rad"
-        )
-    return None
-
-
 def occupancy_for(track: Track) -> OccupancyGrid:
     """The track's ROS map if its folder has one, else a grid rasterised from its boundaries."""
     src = Path(track.source)
@@ -126,12 +98,34 @@ def occupancy_for(track: Track) -> OccupancyGrid:
     return rasterize_track(track, resolution_m=0.05)
 
 
-class SimulatorService:
-    """The real-time loop; publishers are injected so the core stays testable."""
+class SimulatorService(Service):
+    """The real-time loop; the bus is injected so the loop stays testable without Zenoh."""
 
-    def __init__(self, cfg: RacestackConfig, bus: Bus, track: Track) -> None:
+    NAME = "simulator"
+    PORTS = (
+        subscribes(DRIVE_CMD, DriveCmd),
+        subscribes(SIM_CONTROL, SimControl),
+        publishes(POSE, Pose),
+        publishes(IMU, Imu),
+        publishes(ODOM, Odom),
+        publishes(SCAN, Scan),
+        publishes(SIM_TRUTH, SimTruth),
+        publishes(LAP, LapEvent),
+        publishes(EVENTS_LOG, LogEvent),
+    )
+    EVENT_INTERVAL_S = FAULT_REPORT_INTERVAL_S
+
+    def __init__(
+        self,
+        cfg: RacestackConfig,
+        bus: Bus,
+        track: Track,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        super().__init__(bus, clock=clock, wall_clock=wall_clock)
         self.cfg = cfg
-        self.bus = bus
         self.track = track
         s = cfg.simulator
         self.sim = Simulator(s)
@@ -139,69 +133,86 @@ class SimulatorService:
         self.sensors = SensorSuite(s, grid)
         veh = s.vehicle
         self.timer = LapTimer(track, width_m=veh.width_m, length_m=veh.length_m)
-        k = bus.keys
-        self.pub_pose = bus.publisher(k.pose, Pose)
-        self.pub_imu = bus.publisher(k.imu, Imu)
-        self.pub_odom = bus.publisher(k.odom, Odom)
-        self.pub_scan = bus.publisher(k.scan, Scan)
-        self.pub_truth = bus.publisher(k.sim_truth, SimTruth)
-        self.pub_lap = bus.publisher(k.lap, LapEvent)
-        self.pub_log = bus.publisher(k.events_log, LogEvent)
+        self.pub_pose = self.publisher(POSE)
+        self.pub_imu = self.publisher(IMU)
+        self.pub_odom = self.publisher(ODOM)
+        self.pub_scan = self.publisher(SCAN)
+        self.pub_truth = self.publisher(SIM_TRUTH)
+        self.pub_lap = self.publisher(LAP)
         self.commands: LatestSlot[DriveCmd] = LatestSlot()
-        self.controls = bus.subscribe(k.sim_control, SimControl, queue_size=16)
+        self.controls = self.subscribe(SIM_CONTROL, queue_size=16)
         #: actuation = "fake_vesc": commands come from the vesc_driver's serial frames
         self.vesc: VescActuation | None = None
         if s.actuation == "fake_vesc":
             self.vesc = VescActuation(s.fake_vesc_link, cfg.vesc)
         else:
-            bus.subscribe(k.drive_cmd, DriveCmd, callback=self.commands.put)
-        self.drops = DropReporter(bus, SERVICE, publisher=self.pub_log)
+            self.subscribe(DRIVE_CMD, self.commands.put)
         #: faults of its own: invalid records (by key) and car-state faults (STATE_FAULT_KEY)
         self.faults = bus.faults
-        self.clock = time.monotonic  #: clock of the fault-report rate limit [s]
-        self.t0_wall = time.time()
+        self.t0_wall = self.wall_clock()
         self.paused = False
+        self.stopped = False  #: off_track_policy "stop" acted: commands are ignored
         self.overruns = 0
         self.fault_resets = 0  #: resets because the car's state left the contract
-        self._reset_reports = RateLimiter(FAULT_REPORT_INTERVAL_S)
+        self.off_track_actions = 0  #: off-track events the policy acted on (or let pass)
         self._next_truth = 0.0
         self.reset()
+
+    @classmethod
+    def create(cls, cfg: RacestackConfig, args: argparse.Namespace, bus: Bus) -> SimulatorService:
+        """The simulator on the configured track."""
+        return cls(cfg, bus, load_track(cfg.track.source))
 
     def stamp(self, t_sim: float) -> float:
         """Wall-clock stamp [s] of simulation time `t_sim`."""
         return self.t0_wall + t_sim
 
     def reset(self) -> None:
-        """Put the car at rest just behind the start line."""
+        """Put the car at rest just behind the start line (and release an off-track stop)."""
         t = self.sim.t_s
         self.sim.reset(centreline_pose(self.track, START_OFFSET_M), speed_mps=0.0, t_s=t)
         self.sensors.reset()
         self.timer.reset()
+        self.stopped = False
         st = self.sim.state
         self.timer.update(t, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
-        log.info("car reset to the start line")
-
-    def say(self, level: str, text: str) -> None:
-        """Log locally and on ``events/log``."""
-        getattr(log, level)(text)
-        self.pub_log.try_put(
-            stamp_s=time.time(), level=level, source=SERVICE, text=text[:MAX_STR_LEN]
-        )
+        self.log.info("car reset to the start line")
 
     def fault_reset(self, reason: str, detail: str) -> None:
         """The car's state left the contract: count it, reset the car, say so (rate-limited)."""
         self.faults.record(STATE_FAULT_KEY, reason, detail)
         self.fault_resets += 1
         self.reset()
-        allowed, suppressed = self._reset_reports.allow(self.clock())
-        if not allowed:
-            return
-        more = f" ({suppressed} more since the last report)" if suppressed else ""
         self.say(
-            "error",
+            LogLevelName.ERROR,
             f"car state left the contract ({detail}): car reset to the start line "
-            f"(fault reset {self.fault_resets}){more}",
+            f"(fault reset {self.fault_resets})",
+            limit="fault_reset",
         )
+
+    def on_off_track(self, ev: TimerEvent) -> None:
+        """The footprint left the track: apply ``[simulator] off_track_policy`` and say so."""
+        self.off_track_actions += 1
+        policy = self.cfg.simulator.off_track_policy
+        where = f"off track at s = {ev.s_m:.1f} m"
+        if policy == "stop":
+            self.stopped = True
+            self.say(
+                LogLevelName.WARNING,
+                f"{where}: car stopped (off-track stop {self.off_track_actions}); drive "
+                "commands are ignored until sim/control reset or resume",
+            )
+        elif policy == "reset_to_centreline":
+            pose = centreline_pose(self.track, ev.s_m)
+            self.sim.reset(pose, speed_mps=0.0, t_s=self.sim.t_s)
+            self.sensors.reset()
+            self.say(
+                LogLevelName.WARNING,
+                f"{where}: car put back on the centreline at rest "
+                f"(off-track reset {self.off_track_actions})",
+            )
+        else:
+            self.say(LogLevelName.WARNING, where)
 
     def advance(self, h: float) -> StepResult | None:
         """Step the car by `h` [s] and check its state; None when it had to be reset.
@@ -227,15 +238,15 @@ class SimulatorService:
             cmd = self.vesc.update(st.v_mps * math.cos(st.slip_rad))
         else:
             cmd = self.commands.take()
-        if cmd is not None and not self.paused:
+        if cmd is not None and not (self.paused or self.stopped):
             self.sim.set_command(cmd.speed_mps, cmd.steering_rad, self.sim.t_s)
         for ctl in self.controls.drain():
-            if ctl.action == "reset":
+            if ctl.action == SimActionName.RESET:
                 self.reset()
-            elif ctl.action == "pause":
+            elif ctl.action == SimActionName.PAUSE:
                 self.paused = True
-            elif ctl.action == "resume":
-                self.paused = False
+            elif ctl.action == SimActionName.RESUME:
+                self.paused = self.stopped = False
 
     def publish(self, res: StepResult) -> None:
         """Sensors, truth and lap events of one step.
@@ -284,10 +295,10 @@ class SimulatorService:
                 off_track_events=ev.off_track_events,
                 max_abs_e_con_m=ev.max_abs_e_con_m,
             )
-            if ev.kind == "lap":
-                log.info("lap %d: %.3f s", ev.lap, ev.lap_time_s or 0.0)
-            elif ev.kind == "off_track":
-                self.say("warning", f"off track at s = {ev.s_m:.1f} m")
+            if ev.kind == LapKindName.LAP:
+                self.log.info("lap %d: %.3f s", ev.lap, ev.lap_time_s or 0.0)
+            elif ev.kind == LapKindName.OFF_TRACK:
+                self.on_off_track(ev)
         if res.t_s + 1e-9 >= self._next_truth:
             self._next_truth = res.t_s + 1.0 / TRUTH_RATE_HZ
             slip = st.slip_rad
@@ -317,13 +328,31 @@ class SimulatorService:
         if self.vesc is not None:
             self.vesc.close()
 
+    def serve(self, stop: threading.Event) -> int:
+        """The service's main thread: the real-time loop until `stop`."""
+        self.log.info(
+            "simulating %s (%.2f m) in real time; waiting for %s",
+            self.track.name,
+            self.track.length_m,
+            self.keys.drive_cmd if self.vesc is None else f"a vesc_driver on {self.vesc.path}",
+        )
+        self.run(stop)
+        self.log.info(
+            "stopping (%d real-time overruns, %d own faults, %d fault resets, %d off-track)",
+            self.overruns,
+            self.faults.total,
+            self.fault_resets,
+            self.off_track_actions,
+        )
+        return 0
+
     def run(self, stop: threading.Event) -> None:
         """Step the car in real time until `stop` is set."""
         h = self.cfg.simulator.integration_step_s
-        self.t0_wall = time.time() - self.sim.t_s
-        t0_mono = time.monotonic() - self.sim.t_s
+        self.t0_wall = self.wall_clock() - self.sim.t_s
+        t0_mono = self.clock() - self.sim.t_s
         while not stop.is_set():
-            self.drops.poll()
+            self.report()
             self.handle_inputs()
             if self.paused:
                 stop.wait(h)
@@ -333,7 +362,7 @@ class SimulatorService:
             res = self.advance(h)  # None: the car was reset (its state left the contract)
             # publish when the wall clock reaches the new sim time, so no message leaves
             # before the instant its stamp names
-            delay = t0_mono + self.sim.t_s - time.monotonic()
+            delay = t0_mono + self.sim.t_s - self.clock()
             if delay > 0:
                 stop.wait(delay)
             elif delay < -OVERRUN_S:
@@ -342,30 +371,4 @@ class SimulatorService:
                 self.publish(res)
 
 
-def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
-    """The service body."""
-    track = load_track(cfg.track.source)
-    with Bus(cfg.bus, SERVICE) as bus:
-        svc = SimulatorService(cfg, bus, track)
-        try:
-            log.info(
-                "simulating %s (%.2f m) in real time; waiting for %s",
-                track.name,
-                track.length_m,
-                bus.keys.drive_cmd if svc.vesc is None else f"a vesc_driver on {svc.vesc.path}",
-            )
-            svc.run(stop)
-            log.info(
-                "stopping (%d real-time overruns, %d own faults, %d fault resets)",
-                svc.overruns,
-                svc.faults.total,
-                svc.fault_resets,
-            )
-        finally:
-            svc.close()
-    return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m services.simulator``."""
-    return run_service(SERVICE, argv, run, description=__doc__.splitlines()[0])
+main = SimulatorService.main

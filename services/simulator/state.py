@@ -22,8 +22,6 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
 
-import numpy as np
-
 
 def rear_axle(x_m: float, y_m: float, yaw_rad: float, lr_m: float) -> tuple[float, float, float]:
     """Rear-axle pose (x [m], y [m], yaw [rad]) of a car whose CoG is at (x, y), lr behind it."""
@@ -106,10 +104,6 @@ class VehicleState:
             self.yaw_rate_radps,
             self.slip_rad,
         )
-
-    def as_array(self) -> np.ndarray:
-        """(7,) float array in ``StateIndex`` order."""
-        return np.array(self.as_tuple(), dtype=float)
 
     @property
     def pose(self) -> Pose2D:

@@ -12,7 +12,7 @@ Entity layout (units in the names or below):
   (centreline points coloured by the NSC), ``meta/track`` (name, source, length_m),
   ``meta/run`` (car, start time, timeline choice).
 * drawings (at most ``visual_max_hz`` per entity, styles static): ``world/car``
-  (0.58 x 0.31 m footprint + heading arrow, from ``State``),
+  (the ``car_length_m`` x ``car_width_m`` footprint + heading arrow, from ``State``),
   ``world/truth`` (simulator truth footprint), ``world/pose`` (localiser pose, drawn only
   while no ``State`` arrives),
   ``world/plan/horizon`` (predicted horizon, points coloured by planned speed),
@@ -22,7 +22,7 @@ Entity layout (units in the names or below):
 * scalars: ``speed/{measured,commanded,odom,truth,progress}`` [m/s],
   ``steering/{measured,commanded,odom,truth}`` [rad], ``track_error/{e_con,e_con_truth}``
   [m], ``beta/{beta,nsc}`` [-], ``solver/{solve_time_ms,status_code,iterations,
-  consecutive_failures}`` (status code 0 solved, 1 fallback, 2 braking),
+  consecutive_failures}`` (status code 0 solved, 1 fallback, 2 braking, 3 recovering),
   ``latency/<key>`` [ms], ``laps/{lap_time_s,mean_speed_mps}``, ``vesc/<field>`` (units as
   in ``VescState``), ``health/{state_valid,state_age_ms,pose_sigma_x_m,pose_sigma_y_m,
   pose_sigma_yaw_rad}``, ``imu/*``, ``state/{x_m,y_m,yaw_rad}``, ``plan/s_m``,
@@ -73,10 +73,13 @@ from shared.messages import (
     Imu,
     InputCol,
     LapEvent,
+    LapKindName,
     LogEvent,
+    LogLevelName,
     Message,
     Odom,
     Plan,
+    PlanStatusName,
     Pose,
     PoseAxis,
     Scan,
@@ -84,7 +87,9 @@ from shared.messages import (
     SimTruth,
     State,
     VescState,
+    VescStatusName,
 )
+from shared.ratelimit import RateLimiter
 from shared.track import Track
 
 #: Stamps at or above this [s] (2001-09-09) are wall-clock seconds since the epoch.
@@ -92,13 +97,19 @@ WALL_CLOCK_MIN_S = 1e9
 SIM_TIME = "sim_time"
 WALL_TIME = "wall_time"
 #: ``solver/status_code`` of each ``Plan.status``.
-STATUS_CODES = {"solved": 0, "fallback": 1, "braking": 2}
-_LEVELS = {
-    "debug": rr.TextLogLevel.DEBUG,
-    "info": rr.TextLogLevel.INFO,
-    "warning": rr.TextLogLevel.WARN,
-    "error": rr.TextLogLevel.ERROR,
+STATUS_CODES = {
+    PlanStatusName.SOLVED: 0,
+    PlanStatusName.FALLBACK: 1,
+    PlanStatusName.BRAKING: 2,
+    PlanStatusName.RECOVERING: 3,
 }
+_LEVELS = {
+    LogLevelName.DEBUG: rr.TextLogLevel.DEBUG,
+    LogLevelName.INFO: rr.TextLogLevel.INFO,
+    LogLevelName.WARNING: rr.TextLogLevel.WARN,
+    LogLevelName.ERROR: rr.TextLogLevel.ERROR,
+}
+_INFO, _WARNING, _ERROR = LogLevelName.INFO, LogLevelName.WARNING, LogLevelName.ERROR
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
 _VESC_FIELDS = tuple(
     f.name
@@ -170,24 +181,6 @@ class ScalarBatcher:
             )
 
 
-class _RateLimit:
-    """At most one event per `interval_s` of a clock; counts what it suppressed."""
-
-    def __init__(self, interval_s: float) -> None:
-        self.interval_s = interval_s
-        self._last: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
-
-    def allow(self, kind: str, now: float) -> tuple[bool, int]:
-        """(allowed, number suppressed since the last allowed one) for one event of `kind`."""
-        last = self._last.get(kind)
-        if last is not None and now - last < self.interval_s:
-            self._suppressed[kind] = self._suppressed.get(kind, 0) + 1
-            return False, 0
-        self._last[kind] = now
-        return True, self._suppressed.pop(kind, 0)
-
-
 class Recorder:
     """Turns decoded records into Rerun log calls on one recording stream.
 
@@ -209,7 +202,7 @@ class Recorder:
         self.cfg = settings or TelemetrySettings()
         self._clock = clock
         self.scalars = ScalarBatcher(rec)
-        self._warn_limit = _RateLimit(self.cfg.warn_interval_s)
+        self._warn_limits: dict[str, RateLimiter] = {}
         self._profile: CurvatureProfile | None = None
         self._timeline: str | None = None  # the timeline set on the stream now
         self._last_batch_wall = clock()
@@ -231,7 +224,7 @@ class Recorder:
         self._path_entities: set[str] = set()
         self._recv_wall = 0.0  # arrival time of the record being handled [s]
         self._plan_info: tuple[str, str] | None = None
-        self._plan_status = "solved"
+        self._plan_status: str = PlanStatusName.SOLVED
         self._state_valid = True
         self._off_track = False
         self._vesc_status: str | None = None
@@ -340,7 +333,10 @@ class Recorder:
             "beta/beta": ("beta", (0, 160, 60)),
             "beta/nsc": ("NSC", (120, 60, 200)),
             "solver/solve_time_ms": ("solve time [ms]", (220, 40, 40)),
-            "solver/status_code": ("status (0 ok, 1 fallback, 2 braking)", (40, 40, 40)),
+            "solver/status_code": (
+                "status (0 ok, 1 fallback, 2 braking, 3 recovering)",
+                (40, 40, 40),
+            ),
             "laps/lap_time_s": ("lap time [s]", (30, 110, 255)),
         }
         for entity, (name, color) in styles.items():
@@ -398,7 +394,7 @@ class Recorder:
         self._recv_wall = recv_wall_s
         if suffix in self._silent:
             self._silent.discard(suffix)
-            self.event("telemetry", "info", f"{suffix}: messages again (input no longer stale)")
+            self.event("telemetry", _INFO, f"{suffix}: messages again (input no longer stale)")
         self._latency(suffix, tl, t, recv_wall_s)
         try:
             handler(msg, tl, t, recv_wall_s)
@@ -427,13 +423,16 @@ class Recorder:
         self.rec.log(entity or f"events/{source}", rr.TextLog(text, level=_LEVELS[level]))
 
     def warn(self, kind: str, text: str, stamp: tuple[str, float] | None = None,
-             level: str = "warning") -> bool:
+             level: str = _WARNING) -> bool:
         """A rate-limited warning of `kind` on ``events/telemetry``; True if it was logged."""
-        ok, suppressed = self._warn_limit.allow(kind, self._clock())
+        limit = self._warn_limits.get(kind)
+        if limit is None:
+            limit = self._warn_limits[kind] = RateLimiter(self.cfg.warn_interval_s)
+        ok, suppressed = limit.allow(self._clock())
         if not ok:
             return False
         if suppressed:
-            text += f" (+{suppressed} similar in the last {self._warn_limit.interval_s:g} s)"
+            text += f" (+{suppressed} similar in the last {limit.interval_s:g} s)"
         self.event("telemetry", level, text, stamp)
         return True
 
@@ -445,7 +444,7 @@ class Recorder:
                 continue
             if wall_now - seen > self.cfg.stale_after_s:
                 self._silent.add(suffix)
-                self.event("telemetry", "warning",
+                self.event("telemetry", _WARNING,
                            f"stale input: no message on {suffix} for "
                            f"{wall_now - seen:.2f} s")
 
@@ -562,9 +561,9 @@ class Recorder:
         if m.valid != self._state_valid:
             self._state_valid = m.valid
             if m.valid:
-                self.event("telemetry", "info", "state valid again", (tl, t))
+                self.event("telemetry", _INFO, "state valid again", (tl, t))
             else:
-                self.event("telemetry", "warning", "state not valid (stale input)", (tl, t))
+                self.event("telemetry", _WARNING, "state not valid (stale input)", (tl, t))
         elif age > self.cfg.stale_after_s:
             self.warn("stale_state", f"stale input: state built from data {age:.2f} s old",
                       (tl, t))
@@ -608,11 +607,11 @@ class Recorder:
             self.rec.log("plan/info", rr.AnyValues(method=m.method, status=m.status,
                                                    solver_status=m.solver_status))
         if m.status != self._plan_status:
-            if m.status == "solved":
-                self.event("telemetry", "info", f"solver recovered ({m.solver_status})", (tl, t))
+            if m.status == PlanStatusName.SOLVED:
+                self.event("telemetry", _INFO, f"solver recovered ({m.solver_status})", (tl, t))
             self._plan_status = m.status
-        if m.status != "solved":
-            level = "error" if m.status == "braking" else "warning"
+        if m.status != PlanStatusName.SOLVED:
+            level = _ERROR if m.status == PlanStatusName.BRAKING else _WARNING
             self.warn(f"solver_{m.status}",
                       f"solver {m.status}: {m.solver_status} "
                       f"({m.consecutive_failures} failures in a row)", (tl, t), level=level)
@@ -635,7 +634,7 @@ class Recorder:
             )
 
     def _lap_event(self, m: LapEvent, tl: str, t: float, _recv: float) -> None:
-        if m.kind == "lap":
+        if m.kind == LapKindName.LAP:
             self.scalars.add("laps/lap_time_s", tl, t, float(m.lap_time_s or 0.0))
             self._scalar("laps/mean_speed_mps", tl, t, m.mean_speed_mps)
             speed = f", {m.mean_speed_mps:.3f} m/s" if m.mean_speed_mps is not None else ""
@@ -643,13 +642,13 @@ class Recorder:
                     if m.max_abs_e_con_m is not None else "")
             text = (f"lap {m.lap}: {m.lap_time_s:.3f} s{speed}{econ}, "
                     f"{m.off_track_events} off-track")
-            level = "info"
-        elif m.kind == "start":
-            text, level = f"timing started (lap {m.lap + 1})", "info"
-        elif m.kind == "off_track":
-            text, level = f"OFF TRACK during lap {m.lap + 1}", "warning"
+            level = _INFO
+        elif m.kind == LapKindName.START:
+            text, level = f"timing started (lap {m.lap + 1})", _INFO
+        elif m.kind == LapKindName.OFF_TRACK:
+            text, level = f"OFF TRACK during lap {m.lap + 1}", _WARNING
         else:
-            text, level = f"back on track (lap {m.lap + 1})", "info"
+            text, level = f"back on track (lap {m.lap + 1})", _INFO
         self._set_time(tl, t)
         self.rec.log(
             "events/lap",
@@ -663,7 +662,7 @@ class Recorder:
                 max_abs_e_con_m=_nan(m.max_abs_e_con_m),
             ),
         )
-        if m.kind in ("start", "lap") and m.lap + 1 != self._lap:
+        if m.kind in (LapKindName.START, LapKindName.LAP) and m.lap + 1 != self._lap:
             if self._path:
                 self._log_path()
             self._lap = m.lap + 1
@@ -676,7 +675,7 @@ class Recorder:
             if v is not None:
                 self.scalars.add(f"vesc/{name}", tl, t, float(v))
         if m.status != self._vesc_status:
-            level = "info" if m.status == "ok" else "warning"
+            level = _INFO if m.status == VescStatusName.OK else _WARNING
             self.event("vesc", level, f"VESC status {m.status}"
                        + (f" (fault code {m.fault_code})" if m.fault_code else ""), (tl, t))
             self._vesc_status = m.status
@@ -697,10 +696,10 @@ class Recorder:
         if m.off_track != self._off_track:
             self._off_track = m.off_track
             if m.off_track:
-                self.event("telemetry", "warning",
+                self.event("telemetry", _WARNING,
                            f"off track at s = {m.s_m:.2f} m (e_con {m.e_con_m:+.2f} m)", (tl, t))
             else:
-                self.event("telemetry", "info", "back on track", (tl, t))
+                self.event("telemetry", _INFO, "back on track", (tl, t))
         self._pose_xyyaw = (m.x_m, m.y_m, m.yaw_rad)
         if self._path_from_truth:
             self._path_add(m.x_m, m.y_m, m.speed_mps, tl, t)
@@ -720,7 +719,7 @@ class Recorder:
                                                         level=_LEVELS[m.level]))
 
     def _sim_control(self, m: SimControl, tl: str, t: float, _recv: float) -> None:
-        self.event("sim_control", "info", f"simulator {m.action} requested", (tl, t))
+        self.event("sim_control", _INFO, f"simulator {m.action} requested", (tl, t))
 
     # ------------------------------------------------------------------ driven path
     def _path_add(self, x: float, y: float, v: float, tl: str, t: float) -> None:

@@ -1,8 +1,8 @@
 """Read a telemetry recording back: the bench's lap table and figures of a recorded run.
 
 ``racestack report RUN.rrd`` (or the run folder) prints the lap table of the run
-(``services.bench.table.format_table`` on a ``results_document`` built from the recorded
-lap events) and writes ``results.json`` plus the bench's figures (``services.bench.figures``)
+(``shared.evaluation.format_table`` on a ``results_document`` built from the recorded
+lap events) and writes ``results.json`` plus the bench's figures (``shared.evaluation``)
 into ``<run folder>/report/`` (``--out DIR``), so a race on the real car is analysed like a
 bench run. The track comes from ``--track``, else from the recording's static
 ``meta/track`` source, else from the recorded centreline and boundaries themselves.
@@ -28,18 +28,18 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import rerun as rr
 
-from services.bench.figures import write_figures
-from services.bench.results import (
-    LapRecord,
-    MethodRun,
-    Trace,
-    results_document,
-    write_results,
-)
-from services.bench.table import format_table
 from services.telemetry.recorder import SIM_TIME, WALL_TIME
 from shared.config import ConfigError, load_config
 from shared.curvature import CurvatureProfile, track_profile
+from shared.evaluation import (
+    LapRecord,
+    MethodRun,
+    Trace,
+    format_table,
+    results_document,
+    write_figures,
+    write_results,
+)
 from shared.track import Track, TrackError, load_track
 
 _ROW_ID = "rerun.controls.RowId"

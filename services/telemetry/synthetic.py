@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from shared.car import CAR
 from shared.keys import (
     DRIVE_CMD,
     EVENTS_LOG,
@@ -57,7 +58,6 @@ STACK_RATES: Mapping[str, float] = {
     SIM_TRUTH: 50.0,
     SCAN: 10.0,
 }
-WHEELBASE_M = 0.33
 
 
 def _ticks(rates: Mapping[str, float], duration_s: float) -> Iterator[tuple[float, int, str]]:
@@ -110,7 +110,7 @@ def lap_stream(
     for t, _k, suffix in heapq.merge(_ticks(rates, duration_s), events):
         stamp = t0_s + t
         s, x, y, yaw, kappa = pose_at(t)
-        steer = float(np.clip(math.atan(WHEELBASE_M * kappa), -0.4, 0.4))
+        steer = float(np.clip(math.atan(CAR.wheelbase_m * kappa), -0.4, 0.4))
         yaw_rate = float(np.clip(speed_mps * kappa, -20.0, 20.0))
         msg: Message
         if suffix == POSE:

@@ -41,6 +41,7 @@ from services.vesc_driver.schedule import WAKE_SLACK_S, TickScheduler
 from services.vesc_driver.serial_link import LinkState, SerialLink
 from services.vesc_driver.watchdog import CommandWatchdog, WatchdogState
 from shared.config.vesc import VescSettings
+from shared.messages import VescStatusName
 from shared.vesc.conversions import erpm_to_speed, servo_to_steering, yaw_rate_from
 from shared.vesc.decoder import FrameDecoder
 from shared.vesc.protocol import (
@@ -51,12 +52,6 @@ from shared.vesc.protocol import (
     encode_set_servo_pos,
 )
 from shared.vesc.values import VescValues, is_values_reply, parse_values
-
-#: Link status strings, as in ``shared.messages.VESC_STATUSES``.
-STATUS_OK = "ok"
-STATUS_FAULT = "fault"
-STATUS_STALE = "stale"
-STATUS_DISCONNECTED = "disconnected"
 
 
 @dataclass(frozen=True, slots=True)
@@ -258,7 +253,7 @@ class VescDriver:
     def _on_values(self, values: VescValues, now: float) -> None:
         self._last_values = values
         self._last_values_s = now
-        status = STATUS_FAULT if values.fault_code else STATUS_OK
+        status = VescStatusName.FAULT if values.fault_code else VescStatusName.OK
         self._pending.state = VescStateRecord(stamp_s=now, status=status, values=values)
         if values.erpm is not None:
             s = self.settings
@@ -287,12 +282,12 @@ class VescDriver:
     def status(self, now: float) -> str:
         """ "disconnected" | "stale" (no reply for ``stale_values_s``) | "fault" | "ok"."""
         if not self.link.connected:
-            return STATUS_DISCONNECTED
+            return VescStatusName.DISCONNECTED
         if self._last_values_s is None or now - self._last_values_s > self.settings.stale_values_s:
-            return STATUS_STALE
+            return VescStatusName.STALE
         if self._last_values is not None and self._last_values.fault_code:
-            return STATUS_FAULT
-        return STATUS_OK
+            return VescStatusName.FAULT
+        return VescStatusName.OK
 
     # -- output ------------------------------------------------------------------------------
     def _frames_for(self, now: float) -> tuple[list[bytes], bool, WatchdogState]:

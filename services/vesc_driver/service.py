@@ -28,7 +28,8 @@ Threads:
   are counted into the next; ``shared.ratelimit.RateLimiter``). While no reply arrives it
   publishes a status-only ``vesc/state`` (all values None) every ``STATUS_ONLY_INTERVAL_S``.
   A record of its own that still fails validation is not sent but counted in
-  ``bus.faults`` and reported the same way (``DropReporter``); the loop goes on.
+  ``bus.faults`` and reported the same way (``DropReporter``); the loop goes on. The bus
+  session, the event log and the reports are the ``shared.service.Service`` base's.
 
 On SIGINT/SIGTERM the driver thread writes one brake frame, closes the port, and the main
 thread then closes the Zenoh session.
@@ -38,29 +39,34 @@ from __future__ import annotations
 
 import argparse
 import collections
-import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from services.vesc_driver.driver import OdometryRecord, TickResult, VescDriver, VescStateRecord
 from services.vesc_driver.serial_link import LinkState, SerialLink
 from services.vesc_driver.watchdog import WatchdogState
-from shared.bus import Bus, DropOldestQueue, DropReporter
+from shared.bus import Bus, DropOldestQueue
 from shared.config import RacestackConfig
 from shared.config.vesc import VescSettings
-from shared.messages import DriveCmd, LogEvent, MessageError, Odom, VescState
+from shared.keys import DRIVE_CMD, EVENTS_LOG, ODOM, VESC_STATE
+from shared.messages import (
+    DriveCmd,
+    LogEvent,
+    LogLevelName,
+    MessageError,
+    Odom,
+    VescState,
+    VescStatusName,
+)
 from shared.messages.codec import FieldInfo
-from shared.ratelimit import RateLimiter
-from shared.service_shell import run_service
+from shared.ratelimit import EpisodeLimiter, GrowthLimiter
+from shared.service import Service, publishes, subscribes
 from shared.vesc.protocol import encode_set_current_brake
 from shared.vesc.values import VescValues
-
-log = logging.getLogger(__name__)
-SERVICE = "vesc_driver"
 
 #: Longest a serial write may block [s].
 WRITE_TIMEOUT_S = 0.05
@@ -141,55 +147,6 @@ def odom_message(rec: OdometryRecord, stamp_s: float) -> tuple[Odom | None, tupl
     return odom, tuple(bad)
 
 
-# --------------------------------------------------------------------------- rate limits
-class EpisodeLimiter:
-    """Rate limit of start/end event pairs (port lost/back, braking/resumed).
-
-    A start is reported when ``interval_s`` [s] passed since the last reported start (a
-    ``RateLimiter``), else it is suppressed and counted; its end is reported only if its
-    start was, so the last reported line always tells the current state.
-    """
-
-    def __init__(self, interval_s: float) -> None:
-        """Create the limiter; ``interval_s`` [s] between two reported starts."""
-        self._limit = RateLimiter(interval_s)
-        self._open_reported = False
-
-    @property
-    def suppressed(self) -> int:
-        """Starts suppressed since the last reported one."""
-        return self._limit.suppressed
-
-    def start(self, now: float) -> int | None:
-        """A start at ``now`` [s]: the number of suppressed starts before it if it is to be
-        reported (they are then cleared), or None when this one is suppressed."""
-        allowed, suppressed = self._limit.allow(now)
-        self._open_reported = allowed
-        return suppressed if allowed else None
-
-    def end(self) -> bool:
-        """The matching end: True if it is to be reported."""
-        reported, self._open_reported = self._open_reported, False
-        return reported
-
-
-class GrowthLimiter:
-    """Reports a growing total at most every ``interval_s`` [s] (the first growth at once)."""
-
-    def __init__(self, interval_s: float) -> None:
-        """Create the limiter; ``interval_s`` [s] between two reports (a ``RateLimiter``)."""
-        self._limit = RateLimiter(interval_s)
-        self.reported = 0  #: the total of the last report
-
-    def check(self, total: int, now: float) -> bool:
-        """True when ``total`` grew since the last report and the interval has passed."""
-        if total > self.reported and self._limit.ready(now):
-            self._limit.allow(now)
-            self.reported = total
-            return True
-        return False
-
-
 # --------------------------------------------------------------------------- out-box items
 @dataclass(frozen=True, slots=True)
 class _Say:
@@ -208,8 +165,16 @@ _Item = _Say | _Reply
 
 
 # --------------------------------------------------------------------------- the service
-class VescService:
+class VescService(Service):
     """The driver, its serial loop thread and the bus side (see the module docstring)."""
+
+    NAME = "vesc_driver"
+    PORTS = (
+        subscribes(DRIVE_CMD, DriveCmd),
+        publishes(VESC_STATE, VescState),
+        publishes(ODOM, Odom),
+        publishes(EVENTS_LOG, LogEvent),
+    )
 
     def __init__(
         self,
@@ -227,10 +192,14 @@ class VescService:
             clock: monotonic clock [s] of the driver.
             wall_clock: wall clock [s] for message stamps.
         """
+        super().__init__(
+            bus,
+            clock=clock,
+            wall_clock=wall_clock,
+            report_period_s=settings.event_interval_s,
+            event_interval_s=settings.event_interval_s,
+        )
         self.settings = settings
-        self.bus = bus
-        self._clock = clock
-        self._wall = wall_clock
         link = SerialLink(
             settings.port,
             settings.baudrate,
@@ -245,7 +214,7 @@ class VescService:
         self.driver_error: BaseException | None = None
         #: Reply fields / odometry the messages rejected: field name -> count.
         self.rejected_fields: collections.Counter[str] = collections.Counter()
-        self.status = "disconnected"  #: link status of the newest tick
+        self.status: str = VescStatusName.DISCONNECTED  #: link status of the newest tick
         # driver-thread state (transitions)
         self._prev_link: LinkState | None = None
         self._ever_connected = False
@@ -256,19 +225,27 @@ class VescService:
         self._invalid_report = GrowthLimiter(settings.event_interval_s)
         self._rejected_report = GrowthLimiter(settings.event_interval_s)
         self._last_state_pub_s = -math.inf
-        k = bus.keys
-        self.pub_state = bus.publisher(k.vesc_state, VescState)
-        self.pub_odom = bus.publisher(k.odom, Odom)
-        self.pub_log = bus.publisher(k.events_log, LogEvent)
-        self.drop_reporter = DropReporter(
-            bus, SERVICE, period_s=settings.event_interval_s, publisher=self.pub_log
-        )
-        self.sub = bus.subscribe(k.drive_cmd, DriveCmd, callback=self.on_drive_cmd)
+        self.pub_state = self.publisher(VESC_STATE)
+        self.pub_odom = self.publisher(ODOM)
+        self.sub = self.subscribe(DRIVE_CMD, self.on_drive_cmd)
+
+    @classmethod
+    def create(cls, cfg: RacestackConfig, args: argparse.Namespace, bus: Bus) -> VescService:
+        """The driver with ``[vesc]`` (``--port`` overrides its port)."""
+        settings = cfg.vesc
+        if args.port:
+            settings = VescSettings.model_validate({**settings.model_dump(), "port": args.port})
+        return cls(settings, bus)
+
+    @staticmethod
+    def add_args(ap: argparse.ArgumentParser) -> None:
+        """``--port``."""
+        ap.add_argument("--port", help="serial device (overrides [vesc] port)")
 
     # -- Zenoh thread --------------------------------------------------------------------
     def on_drive_cmd(self, cmd: DriveCmd) -> None:
         """Hand a valid drive command to the driver (which wakes its loop); never blocks."""
-        self.driver.on_command(cmd.speed_mps, cmd.steering_rad, self._clock())
+        self.driver.on_command(cmd.speed_mps, cmd.steering_rad, self.clock())
         self.commands_received += 1
 
     # -- driver thread -------------------------------------------------------------------
@@ -294,39 +271,43 @@ class VescService:
                 reported = self._link_events.end()
                 if not self._ever_connected:
                     self._ever_connected = True
-                    self._say("info", f"VESC port {port} open")
+                    self._say(LogLevelName.INFO, f"VESC port {port} open")
                 elif reported:
-                    self._say("info", f"VESC port {port} back: resuming")
+                    self._say(LogLevelName.INFO, f"VESC port {port} back: resuming")
             elif link is LinkState.DISCONNECTED:
                 err = self.driver.link.last_error or "not present"
                 if self._prev_link is None:
-                    self._say("warning", f"waiting for the VESC port {port} ({err}); retrying")
+                    self._say(
+                        LogLevelName.WARNING, f"waiting for the VESC port {port} ({err}); retrying"
+                    )
                     self._link_events.start(now)
                 else:
                     n = self._link_events.start(now)
                     if n is not None:
                         more = f" ({n} more losses since the last report)" if n else ""
-                        self._say("error", f"lost the VESC port {port} ({err}); retrying{more}")
+                        self._say(
+                            LogLevelName.ERROR, f"lost the VESC port {port} ({err}); retrying{more}"
+                        )
             self._prev_link = link
         wd = result.watchdog
         if wd is not self._prev_wd:
             if wd is WatchdogState.FRESH:
                 if self._prev_wd in (None, WatchdogState.NO_COMMAND):
-                    self._say("info", "first drive command received: driving")
+                    self._say(LogLevelName.INFO, "first drive command received: driving")
                 elif self._brake_events.end():
-                    self._say("info", "drive commands resumed: driving")
+                    self._say(LogLevelName.INFO, "drive commands resumed: driving")
             elif wd is WatchdogState.EXPIRED:
                 n = self._brake_events.start(now)
                 if n is not None:
                     more = f" ({n} more since the last report)" if n else ""
                     self._say(
-                        "warning",
+                        LogLevelName.WARNING,
                         f"no drive command for {s.command_timeout_s * 1e3:.0f} ms: braking "
                         f"({s.brake_current_a:g} A){more}",
                     )
             elif wd is WatchdogState.NO_COMMAND and self._prev_wd is None:
                 key = self.bus.keys.drive_cmd
-                self._say("info", f"waiting for the first drive command on {key}")
+                self._say(LogLevelName.INFO, f"waiting for the first drive command on {key}")
             self._prev_wd = wd
         if result.state is not None or result.odometry is not None:
             self.outbox.put(_Reply(result.status, result.state, result.odometry))
@@ -339,25 +320,34 @@ class VescService:
         try:
             if link.connected:
                 ok = link.write(encode_set_current_brake(self.settings.brake_current_a))
-                self.outbox.put(_Say("info", "stopping: brake sent" if ok else "stopping"))
+                said = "stopping: brake sent" if ok else "stopping"
+                self.outbox.put(_Say(LogLevelName.INFO, said))
         finally:
             self.driver.close()
 
     # -- main thread ---------------------------------------------------------------------
     def serve(self, stop: threading.Event) -> int:
         """Run the driver thread and publish until ``stop`` is set; 0, or 1 if the loop died."""
+        s = self.settings
+        self.log.info(
+            "VESC driver on %s at %g Hz (write on command: %s); commands from %s",
+            s.port,
+            s.command_rate_hz,
+            "yes" if s.write_on_command else "no",
+            self.sub.key,
+        )
         thread = threading.Thread(target=self.run_driver, args=(stop,), name="vesc-serial")
         thread.start()
         code = 0
         next_check = 0.0
-        next_waiting_log = self._clock() + WAITING_LOG_INTERVAL_S
+        next_waiting_log = self.clock() + WAITING_LOG_INTERVAL_S
         try:
             while not stop.is_set():
                 item = self.outbox.get(timeout_s=CHECK_PERIOD_S)
                 while item is not None:
                     self._publish(item)
                     item = self.outbox.get()
-                now = self._clock()
+                now = self.clock()
                 if now >= next_check:
                     next_check = now + CHECK_PERIOD_S
                     self._check_counters(now)
@@ -365,8 +355,7 @@ class VescService:
                     next_waiting_log = now + WAITING_LOG_INTERVAL_S
                     self._log_waiting()
                 if not thread.is_alive() and not stop.is_set():
-                    log.error("the serial loop ended: %r", self.driver_error)
-                    self._publish(_Say("error", f"serial loop failed: {self.driver_error!r}"))
+                    self.say(LogLevelName.ERROR, f"serial loop failed: {self.driver_error!r}")
                     code = 1
                     break
         finally:
@@ -374,16 +363,16 @@ class VescService:
             self.driver.wake()
             thread.join(JOIN_TIMEOUT_S)
             if thread.is_alive():
-                log.error("the serial loop did not stop within %.1f s", JOIN_TIMEOUT_S)
+                self.log.error("the serial loop did not stop within %.1f s", JOIN_TIMEOUT_S)
                 code = 1
             for item in self.outbox.drain():
                 self._publish(item)
-            log.info("counters: %s", self.diagnostics())
+            self.log.info("counters: %s", self.diagnostics())
         return code
 
     def _stamp(self, mono_s: float) -> float:
         """Wall-clock stamp [s] of a driver-clock time ``mono_s``."""
-        return max(0.0, self._wall() - (self._clock() - mono_s))
+        return max(0.0, self.wall_clock() - (self.clock() - mono_s))
 
     def _publish(self, item: _Item) -> None:
         """Publish one out-box item; a record that fails validation anyway (the values are
@@ -398,7 +387,7 @@ class VescService:
                 msg, skipped = vesc_state_message(item.state.values, item.status, stamp)
                 self.rejected_fields.update(skipped)
                 self.pub_state.put(msg)
-                self._last_state_pub_s = self._clock()
+                self._last_state_pub_s = self.clock()
         if item.odometry is not None:
             with faults.guard(self.pub_odom.key):
                 odom, bad = odom_message(item.odometry, self._stamp(item.odometry.stamp_s))
@@ -406,25 +395,15 @@ class VescService:
                 if odom is not None:
                     self.pub_odom.put(odom)
 
-    def say(self, level: str, text: str) -> None:
-        """Log locally and publish a ``LogEvent`` on ``events/log``."""
-        getattr(log, level)(text)
-        try:
-            self.pub_log.put(
-                LogEvent(stamp_s=self._wall(), level=level, source=SERVICE, text=text[:8192])
-            )
-        except Exception as exc:  # a closed session while stopping: the local log has it
-            log.debug("could not publish a log event: %s", exc)
-
     def _check_counters(self, now: float) -> None:
         """Rate-limited events for grown drop / invalid-command / rejected-field counts."""
-        self.drop_reporter.poll()
+        self.report()
         c = self.driver.counters
         invalid = c.out_of_range_commands + c.nonfinite_commands
         if self._invalid_report.check(invalid, now):
             action = "braked" if self.settings.invalid_command == "brake" else "clamped"
             self.say(
-                "warning",
+                LogLevelName.WARNING,
                 f"{invalid} invalid drive commands since start: {c.out_of_range_commands} out "
                 f"of the VESC range ({action}), {c.nonfinite_commands} non-finite (braked)",
             )
@@ -432,25 +411,25 @@ class VescService:
         if self._rejected_report.check(rejected, now):
             parts = [f"{k} x{n}" for k, n in sorted(self.rejected_fields.items())]
             self.say(
-                "warning",
+                LogLevelName.WARNING,
                 f"{rejected} VESC reply values outside the message limits were left out "
                 f"({', '.join(parts)})",
             )
         if now - self._last_state_pub_s >= STATUS_ONLY_INTERVAL_S:
-            msg, _ = vesc_state_message(None, self.status, self._wall())
+            msg, _ = vesc_state_message(None, self.status, self.wall_clock())
             self.pub_state.put(msg)
             self._last_state_pub_s = now
 
     def _log_waiting(self) -> None:
         link = self.driver.link
         if not link.connected:
-            log.info(
+            self.log.info(
                 "still waiting for the VESC port %s (%s)",
                 self.settings.port,
                 link.last_error or "not open yet",
             )
         if self.commands_received == 0:
-            log.info("still waiting for the first drive command on %s", self.bus.keys.drive_cmd)
+            self.log.info("still waiting for the first drive command on %s", self.sub.key)
 
     def diagnostics(self) -> dict[str, int]:
         """The driver's counters plus the service's own (``service.*``)."""
@@ -467,32 +446,4 @@ class VescService:
         self.driver.close()
 
 
-def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
-    """The service body (see the module docstring)."""
-    settings = cfg.vesc
-    if args.port:
-        settings = VescSettings.model_validate({**settings.model_dump(), "port": args.port})
-    svc: VescService | None = None
-    try:
-        with Bus(cfg.bus, SERVICE) as bus:
-            svc = VescService(settings, bus)
-            log.info(
-                "VESC driver on %s at %g Hz (write on command: %s); commands from %s",
-                settings.port,
-                settings.command_rate_hz,
-                "yes" if settings.write_on_command else "no",
-                bus.keys.drive_cmd,
-            )
-            return svc.serve(stop)
-    finally:
-        if svc is not None:
-            svc.close()
-
-
-def _add_args(ap: argparse.ArgumentParser) -> None:
-    ap.add_argument("--port", help="serial device (overrides [vesc] port)")
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m services.vesc_driver``."""
-    return run_service(SERVICE, argv, run, _add_args, description=__doc__.splitlines()[0])
+main = VescService.main

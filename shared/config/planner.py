@@ -11,6 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
+from shared.car import CAR
 from shared.config.base import Section
 
 NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
@@ -230,7 +231,9 @@ class PlannerSettings(Section):
         0.05, gt=0.0, le=0.5, description="model step Ts [s]; also the planner period"
     )
     integrator: Literal["rk4", "euler"] = "rk4"
-    wheelbase_m: float = Field(0.324, gt=0.05, le=2.0, description="L of the kinematic bicycle")
+    wheelbase_m: float = Field(
+        CAR.wheelbase_m, gt=0.05, le=2.0, description="L of the kinematic bicycle [m]"
+    )
     bounds: InputBounds = InputBounds()
     beta_mode: Literal["current", "per_stage"] = Field(
         "current",

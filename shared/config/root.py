@@ -16,6 +16,7 @@ from pydantic import Field, ValidationError
 
 from shared.config.base import ConfigError, Section
 from shared.config.bus import BusSettings
+from shared.config.localization import LocalizationSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
 from shared.config.simulator import SimulatorSettings
 from shared.config.telemetry import TelemetrySettings
@@ -36,6 +37,7 @@ class RacestackConfig(Section):
     planner: PlannerSettings = PlannerSettings()
     bus: BusSettings = BusSettings()
     simulator: SimulatorSettings = SimulatorSettings()
+    localization: LocalizationSettings = LocalizationSettings()
     vesc: VescSettings = VescSettings()
     telemetry: TelemetrySettings = TelemetrySettings()
 

@@ -138,8 +138,12 @@ class SimulatorSettings(Section):
     seed: int = Field(0, ge=0, description="seed of all sensor noise (numpy Generator)")
     off_track_policy: OffTrackPolicy = Field(
         "continue",
-        description="what the runner does when the footprint leaves the track: keep driving "
-        "and record it, stop the run, or put the car back on the centreline",
+        description="what the simulator service does when the footprint leaves the track: "
+        '"continue" drives on; "stop" ignores drive commands from then on (the command '
+        'timeout brakes the car) until a sim/control "reset" or "resume"; '
+        '"reset_to_centreline" puts the car back on the centreline at its projection, at '
+        "rest. Each is counted and said on events/log (the bench's closed loop does not "
+        "read it)",
     )
 
     @model_validator(mode="after")

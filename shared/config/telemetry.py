@@ -13,6 +13,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
+from shared.car import CAR
 from shared.config.base import Section
 
 #: Timeline choice: "auto" puts stamps >= ``WALL_CLOCK_MIN_S`` on ``wall_time``, others on
@@ -64,8 +65,8 @@ class TelemetrySettings(Section):
     path_interval_s: float = Field(0.5, gt=0.0, le=60.0)
     max_path_points: int = Field(5000, ge=10, le=1_000_000)
     speed_color_max_mps: float = Field(5.0, gt=0.0, le=50.0)
-    car_length_m: float = Field(0.58, gt=0.0, le=10.0)
-    car_width_m: float = Field(0.31, gt=0.0, le=10.0)
+    car_length_m: float = Field(CAR.length_m, gt=0.0, le=10.0)
+    car_width_m: float = Field(CAR.width_m, gt=0.0, le=10.0)
     stale_after_s: float = Field(0.5, gt=0.0, le=60.0)
     warn_interval_s: float = Field(5.0, ge=0.0, le=3600.0)
 

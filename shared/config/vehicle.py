@@ -30,6 +30,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, model_validator
 
+from shared.car import CAR
 from shared.config.base import Section
 
 #: Gravitational acceleration [m/s^2] used by the load-transfer check (same as the model).
@@ -118,8 +119,10 @@ class DynamicVehicleParams(Section):
     )
     v_min_mps: float = Field(-5.0, ge=-50.0, lt=0.0, description="slowest (reverse) speed [m/s]")
     v_max_mps: float = Field(20.0, gt=0.0, le=100.0, description="fastest speed [m/s]")
-    width_m: float = Field(0.31, gt=0.0, le=5.0, description="car width (footprint) [m]")
-    length_m: float = Field(0.58, gt=0.0, le=10.0, description="car length (footprint) [m]")
+    width_m: float = Field(CAR.width_m, gt=0.0, le=5.0, description="car width (footprint) [m]")
+    length_m: float = Field(
+        CAR.length_m, gt=0.0, le=10.0, description="car length (footprint) [m]"
+    )
     tyre_model: TyreModel = Field(
         "linear_saturated", description="lateral tyre force law (see the class docstring)"
     )

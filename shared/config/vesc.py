@@ -17,6 +17,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
+from shared.car import CAR
 from shared.config.base import Section
 
 __all__ = ["VescSettings"]
@@ -49,7 +50,11 @@ class VescSettings(Section):
     servo_max: float = Field(0.85, ge=0.0, le=1.0, description="highest servo position [0, 1]")
 
     wheelbase_m: float = Field(
-        0.324, gt=0.0, le=5.0, allow_inf_nan=False, description="odometry yaw rate wheelbase"
+        CAR.wheelbase_m,
+        gt=0.0,
+        le=5.0,
+        allow_inf_nan=False,
+        description="odometry yaw rate wheelbase [m]",
     )
 
     command_rate_hz: float = Field(

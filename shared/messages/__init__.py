@@ -49,6 +49,13 @@ from shared.messages.records import (
     State,
     VescState,
 )
+from shared.messages.vocab import (
+    LapKindName,
+    LogLevelName,
+    PlanStatusName,
+    SimActionName,
+    VescStatusName,
+)
 
 __all__ = [
     "LAP_KINDS",
@@ -66,18 +73,23 @@ __all__ = [
     "Imu",
     "InputCol",
     "LapEvent",
+    "LapKindName",
     "LogEvent",
+    "LogLevelName",
     "Message",
     "MessageError",
     "Odom",
     "Plan",
+    "PlanStatusName",
     "Pose",
     "PoseAxis",
     "Scan",
+    "SimActionName",
     "SimControl",
     "SimTruth",
     "State",
     "VescState",
+    "VescStatusName",
     "decode",
     "decode_any",
     "encode",

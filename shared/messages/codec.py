@@ -433,11 +433,6 @@ class Message(msgspec.Struct, metaclass=_RecordMeta, frozen=True, eq=False, gc=F
         return cls._info.fields
 
     @classmethod
-    def fields_doc(cls) -> list[tuple[str, str]]:
-        """(field name, type/range description) of every field, for documentation."""
-        return [(f.name, f.describe()) for f in cls._info.fields]
-
-    @classmethod
     def check_field(cls, name: str, value: Any) -> Any:
         """`value` as field `name` would store it (e.g. an int as a float); MessageError if
         the field rejects it. Lets a driver drop one bad value instead of a whole record."""

@@ -90,7 +90,8 @@ class InputCol(IntEnum):
     V_P = 2
 
 
-# The allowed strings of the choice fields (msgspec rejects any other value).
+# The allowed strings of the choice fields (msgspec rejects any other value); code names them
+# with the StrEnums of shared.messages.vocab (checked against these at import).
 PlanStatus = Literal["solved", "fallback", "braking", "recovering"]
 PlanMethod = Literal["cimpcc", "mpcc", "raceline", "cimpcc-line"]
 LapKind = Literal["start", "lap", "off_track", "back_on_track"]
@@ -301,7 +302,7 @@ class Plan(Message):
 
 
 class LapEvent(Message):
-    """A lap event of the lap counter (planner or simulator).
+    """A lap event of the lap counter (the simulator's lap timer).
 
     Attributes:
         kind: "start" (timing started), "lap" (a lap completed), "off_track" (the car left

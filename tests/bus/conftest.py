@@ -9,7 +9,6 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from services.launcher.supervisor import free_loopback_port
 from shared.messages import (
     DriveCmd,
     Imu,
@@ -25,6 +24,7 @@ from shared.messages import (
     State,
     VescState,
 )
+from shared.net import free_loopback_port
 
 #: Hard limit of one bus test [s]: past it the stacks are dumped and the run is ended,
 #: so a hung Zenoh session can never hang the suite.

@@ -8,36 +8,9 @@ from typing import Any
 
 import pytest
 
-from shared.bus import DropCounter, DropReporter, FaultCounter, TypedPublisher
-from shared.keys import Keys
-from shared.messages import LogEvent, Message, SimTruth, State, decode
-
-
-class RecordingRaw:
-    """Stands in for ``zenoh.Publisher``: keeps every payload."""
-
-    def __init__(self) -> None:
-        self.sent: list[bytes] = []
-
-    def put(self, data: bytes) -> None:
-        self.sent.append(data)
-
-
-class FakeBus:
-    """What ``DropReporter`` uses of a ``Bus``."""
-
-    def __init__(self) -> None:
-        self.keys = Keys("car0")
-        self.drops = DropCounter()
-        self.faults = FaultCounter()
-        self.raws: dict[str, RecordingRaw] = {}
-
-    def publisher(self, key: str, msg_type: type[Message], **_: Any) -> TypedPublisher[Any]:
-        return TypedPublisher(self.raws.setdefault(key, RecordingRaw()), key, msg_type, self.faults)
-
-    def logs(self) -> list[LogEvent]:
-        raw = self.raws.get(self.keys.events_log)
-        return [decode(b, LogEvent) for b in raw.sent] if raw else []
+from shared.bus import DropReporter, FaultCounter
+from shared.fake_bus import FakeBus
+from shared.messages import LogEvent, SimTruth, State
 
 
 def _truth(**changes: Any) -> dict[str, Any]:
@@ -111,7 +84,7 @@ def test_drop_reporter_reports_own_faults_apart_from_rejected_messages() -> None
     assert not rep.poll()  # not due yet
     t[0] += 0.6
     assert rep.poll()
-    logs = bus.logs()
+    logs = bus.sent(bus.keys.events_log, LogEvent)
     assert [m.level for m in logs] == ["warning", "error"] and rep.reports == 2
     assert logs[0].text.startswith("rejected 1 messages")
     assert logs[1].text == (
@@ -122,6 +95,6 @@ def test_drop_reporter_reports_own_faults_apart_from_rejected_messages() -> None
     bus.faults.record("car state", "yaw_rate_out_of_range", "80 rad/s")
     t[0] += 1.1
     assert rep.poll()
-    assert bus.logs()[-1].text == (
+    assert bus.sent(bus.keys.events_log, LogEvent)[-1].text == (
         "own faults: 1 (total 3), not published: car state yaw_rate_out_of_range x1"
     )

@@ -359,4 +359,4 @@ def test_payloads_are_plain_msgpack_maps() -> None:
 
 
 def _values(msg: Message) -> dict[str, object]:
-    return {name: getattr(msg, name) for name, _ in type(msg).fields_doc()}
+    return {f.name: getattr(msg, f.name) for f in type(msg).fields_info()}

@@ -5,8 +5,8 @@ service: no exception escapes, the fault is counted in ``bus.faults`` and report
 ``events/log``, the car is reset where its state left the contract, and everything it
 publishes decodes (the decoder validates: a record that decodes is within contract).
 
-Most tests use an in-process fake bus whose publishers are the real ``TypedPublisher`` over a
-recording stand-in for ``zenoh.Publisher``; the last one runs the service's real-time loop on
+Most tests use ``shared.fake_bus.FakeBus`` (the real ``TypedPublisher`` over a recording
+stand-in for ``zenoh.Publisher``); the last one runs the service's real-time loop on
 a real loopback Zenoh session and watches it from a second session.
 """
 
@@ -23,20 +23,15 @@ from typing import Any
 
 import pytest
 
-from services.launcher.supervisor import free_loopback_port
-from services.simulator import StepResult, service
-from services.simulator.service import (
-    STATE_FAULT_KEY,
-    SimulatorService,
-    occupancy_for,
-    state_fault,
-    wrap_pi,
-)
-from shared.bus import Bus, DropCounter, FaultCounter, Subscription, TypedPublisher
-from shared.config import RacestackConfig, load_config
+from services.simulator import StepResult, centreline_pose, service
+from services.simulator.limits import state_fault, wrap_pi
+from services.simulator.service import STATE_FAULT_KEY, SimulatorService, occupancy_for
+from shared.bus import Bus
+from shared.config import RacestackConfig, config_from_dict, load_config
 from shared.config.bus import BusSettings
-from shared.keys import Keys
-from shared.messages import Imu, LogEvent, Message, SimTruth, decode
+from shared.fake_bus import FakeBus
+from shared.messages import DriveCmd, Imu, LogEvent, SimControl, SimTruth
+from shared.net import free_loopback_port
 from shared.track import OccupancyGrid, Track, load_track
 
 H = 0.01  # the default integration step [s]
@@ -50,44 +45,6 @@ def _watchdog() -> Iterator[None]:
         yield
     finally:
         faulthandler.cancel_dump_traceback_later()
-
-
-class RecordingRaw:
-    """Stands in for ``zenoh.Publisher``: keeps every payload."""
-
-    def __init__(self) -> None:
-        self.sent: list[bytes] = []
-
-    def put(self, data: bytes) -> None:
-        self.sent.append(data)
-
-
-class FakeBus:
-    """Just what ``SimulatorService`` uses of ``shared.bus.Bus``, without Zenoh."""
-
-    def __init__(self) -> None:
-        self.keys = Keys("car0")
-        self.drops = DropCounter()
-        self.faults = FaultCounter()
-        self.raws: dict[str, RecordingRaw] = {}
-
-    def publisher(self, key: str, msg_type: type[Message], **_: Any) -> TypedPublisher[Any]:
-        return TypedPublisher(self.raws.setdefault(key, RecordingRaw()), key, msg_type, self.faults)
-
-    def subscribe(
-        self,
-        key: str,
-        msg_type: type[Message],
-        callback: Callable[[Any], None] | None = None,
-        *,
-        queue_size: int = 0,
-    ) -> Subscription[Any]:
-        return Subscription(key, msg_type, self.drops, callback, queue_size)
-
-    def sent(self, key: str, msg_type: type[Message]) -> list[Any]:
-        """Every record published on `key`, decoded (and so validated)."""
-        raw = self.raws.get(key)
-        return [decode(b, msg_type) for b in raw.sent] if raw else []
 
 
 @pytest.fixture(scope="module")
@@ -183,7 +140,7 @@ def test_slip_beyond_pi_is_published_wrapped_and_counted(
         assert t.slip_rad == pytest.approx(3.30 - 2 * math.pi)
     assert svc.faults.count(STATE_FAULT_KEY, "slip_not_canonical") == len(new)
     assert svc.fault_resets == 0
-    assert svc.drops.poll()
+    assert svc.report()
     report = _logs(svc)[-1]
     assert report.level == "error" and report.text.startswith("own faults")
     assert "slip_not_canonical" in report.text
@@ -225,7 +182,7 @@ def test_a_state_beyond_the_contract_resets_the_car_and_says_so(
     assert after and all(abs(t.speed_mps) < 0.5 for t in after)
     for t in after:
         _assert_within_contract(t)
-    assert svc.drops.poll() and reason in _logs(svc)[-1].text
+    assert svc.report() and reason in _logs(svc)[-1].text
 
 
 def test_a_non_finite_state_from_the_core_resets_the_car(
@@ -283,7 +240,7 @@ def test_an_invalid_record_is_counted_not_sent_and_the_rest_goes_out(
     assert len(_bus(svc).sent(keys.imu, Imu)) == n_imu  # every IMU sample refused
     assert svc.faults.count(keys.imu, "out_of_range") == 10  # the IMU runs at 100 Hz
     assert len(_truths(svc)) > n_truth  # the valid records still go out
-    assert svc.drops.poll()
+    assert svc.report()
     text = _logs(svc)[-1].text
     assert text.startswith("own faults: 10") and f"{keys.imu} out_of_range x10" in text
 
@@ -313,7 +270,7 @@ def test_the_real_time_loop_survives_faults_on_zenoh(
         watcher.subscribe(watcher.keys.sim_truth, SimTruth, callback=keep(truths))
         watcher.subscribe(watcher.keys.events_log, LogEvent, callback=keep(logs))
         svc = SimulatorService(cfg, hub, track)
-        assert svc.pub_truth.wait_matching(10.0) and svc.pub_log.wait_matching(10.0)
+        assert svc.pub_truth.wait_matching(10.0) and svc.log_pub.wait_matching(10.0)
         real = svc.sim.step
         faults = {"slip": 30, "yaw_rate": 3, "nan": 3}  # steps of each, in this order
 
@@ -368,3 +325,68 @@ def test_the_real_time_loop_survives_faults_on_zenoh(
     assert any("car reset to the start line" in x for x in texts), texts
     own = " ".join(x for x in texts if x.startswith("own faults"))
     assert "slip_not_canonical" in own and "yaw_rate_out_of_range" in own, texts
+
+
+# --------------------------------------------------------------------------- off-track policy
+def _policy_svc(track: Track, policy: str) -> SimulatorService:
+    cfg = config_from_dict({"simulator": {"off_track_policy": policy}})
+    return SimulatorService(cfg, FakeBus(), track)  # type: ignore[arg-type]
+
+
+def _put_beside_the_track(svc: SimulatorService, s_m: float = 5.0) -> None:
+    """The car rolling at 2 m/s, 1.5 m to the right of the centreline at `s_m` (outside)."""
+    x, y, yaw = centreline_pose(svc.track, s_m)
+    side = 1.5  # beyond the half width of every built-in track
+    svc.sim.reset(
+        (x + side * math.sin(yaw), y - side * math.cos(yaw), yaw), speed_mps=2.0, t_s=svc.sim.t_s
+    )
+
+
+def _step(svc: SimulatorService, n: int) -> None:
+    for _ in range(n):
+        svc.handle_inputs()
+        res = svc.advance(H)
+        assert res is not None
+        svc.publish(res)
+
+
+def test_off_track_continue_says_so_and_drives_on(track: Track) -> None:
+    svc = _policy_svc(track, "continue")
+    _put_beside_the_track(svc)
+    _step(svc, 3)
+    assert svc.off_track_actions == 1 and not svc.stopped
+    assert svc.timer.off_track  # still outside: nothing moved the car
+    said = _logs(svc)[-1]
+    assert said.level == "warning" and said.text.startswith("off track at s = ")
+
+
+def test_off_track_stop_brakes_the_car_until_resumed(track: Track) -> None:
+    svc = _policy_svc(track, "stop")
+    bus = _bus(svc)
+    _put_beside_the_track(svc)
+    _step(svc, 3)
+    assert svc.stopped and svc.off_track_actions == 1
+    assert "car stopped" in _logs(svc)[-1].text
+    for _ in range(100):  # 1 s of fresh commands at 3 m/s: ignored, the timeout brakes
+        svc.commands.put(DriveCmd(stamp_s=1.0, speed_mps=3.0, steering_rad=0.0))
+        _step(svc, 1)
+    assert abs(svc.sim.state.v_mps) < 0.05
+    bus.deliver(bus.keys.sim_control, SimControl(stamp_s=1.0, action="resume"))
+    for _ in range(30):
+        svc.commands.put(DriveCmd(stamp_s=1.0, speed_mps=3.0, steering_rad=0.0))
+        _step(svc, 1)
+    assert not svc.stopped and svc.sim.state.v_mps > 0.2  # commands act again
+
+
+def test_off_track_reset_puts_the_car_on_the_centreline_at_rest(track: Track) -> None:
+    svc = _policy_svc(track, "reset_to_centreline")
+    _put_beside_the_track(svc, s_m=5.0)
+    _step(svc, 1)
+    assert svc.off_track_actions == 1
+    st = svc.sim.state
+    x, y, yaw = centreline_pose(track, svc.timer.s_m)
+    assert st.v_mps == 0.0
+    assert math.hypot(st.x_m - x, st.y_m - y) < 0.05 and abs(wrap_pi(st.yaw_rad - yaw)) < 1e-6
+    assert "put back on the centreline" in _logs(svc)[-1].text
+    _step(svc, 2)
+    assert not svc.timer.off_track  # back on track, timing goes on

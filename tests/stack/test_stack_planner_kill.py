@@ -31,10 +31,11 @@ from typing import Any
 
 import pytest
 
-from services.launcher.supervisor import Supervisor, free_loopback_port, service_argv
+from services.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import LapEvent, LogEvent, SimControl, SimTruth
+from shared.net import free_loopback_port
 from shared.track import load_track
 
 pytestmark = pytest.mark.slow

@@ -17,10 +17,11 @@ from pathlib import Path
 import msgpack
 import pytest
 
-from services.launcher.supervisor import Supervisor, free_loopback_port, service_argv
+from services.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import Imu, LapEvent, LogEvent, SimControl, SimTruth
+from shared.net import free_loopback_port
 
 pytestmark = pytest.mark.slow
 SERVICES = ("simulator", "localization_bridge", "planner")

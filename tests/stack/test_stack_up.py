@@ -19,8 +19,9 @@ import pyarrow as pa
 import pytest
 import rerun as rr
 
-from services.launcher.supervisor import free_loopback_port, stop_process
+from services.launcher.supervisor import stop_process
 from services.telemetry.report import lap_events, read_recording
+from shared.net import free_loopback_port
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]

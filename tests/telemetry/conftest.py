@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.supervisor import free_loopback_port
+from shared.net import free_loopback_port
 
 #: Hard limit of one telemetry test [s]: past it the stacks are dumped and the run ends.
 TEST_DEADLINE_S = 50.0

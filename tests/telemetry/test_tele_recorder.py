@@ -23,7 +23,7 @@ from services.telemetry.recorder import (
     footprint,
     timeline_of,
 )
-from services.telemetry.service import (
+from services.telemetry.recording import (
     connect_url,
     display_available,
     free_recording_path,

@@ -24,18 +24,13 @@ from pathlib import Path
 import msgpack
 import pytest
 
-from services.launcher.supervisor import free_loopback_port
 from services.vesc_driver.driver import OdometryRecord
-from services.vesc_driver.service import (
-    _STATE_FIELDS,
-    EpisodeLimiter,
-    GrowthLimiter,
-    odom_message,
-    vesc_state_message,
-)
+from services.vesc_driver.service import _STATE_FIELDS, odom_message, vesc_state_message
 from shared.bus import Bus, Subscription, TypedPublisher
 from shared.config import load_config
 from shared.messages import DriveCmd, LogEvent, Odom, Pose, VescState
+from shared.net import free_loopback_port
+from shared.ratelimit import EpisodeLimiter, GrowthLimiter
 from shared.vesc.fake import DEFAULT_VALUES, FakeEvent
 from shared.vesc.fake_pty import FakeVesc, pty_available
 from shared.vesc.protocol import CommandId

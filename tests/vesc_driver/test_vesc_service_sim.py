@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from services.launcher.supervisor import free_loopback_port, stop_process
+from services.launcher.supervisor import stop_process
 from services.simulator.vesc_actuation import VescActuation
 from services.vesc_driver.driver import VescDriver
 from shared.bus import Bus
@@ -28,6 +28,7 @@ from shared.config import ConfigError, load_config
 from shared.config.simulator import SimulatorSettings
 from shared.config.vesc import VescSettings
 from shared.messages import DriveCmd, Odom, SimTruth
+from shared.net import free_loopback_port
 from shared.vesc.fake_pty import pty_available
 
 ROOT = Path(__file__).resolve().parents[2]
