@@ -21,8 +21,8 @@ import time
 
 import numpy as np
 
-from services.planner.model import step_numpy
-from services.planner.planner import SOLVED, Planner
+from services.bench import ModelPlant, race
+from services.planner import Planner
 from shared.config.planner import PlannerSettings, SolverSettings
 from shared.track import TrackError, load_track
 
@@ -40,19 +40,10 @@ def run(
     t0 = time.perf_counter()
     planner = Planner(track, settings)
     setup_s = time.perf_counter() - t0
-    F = planner.problem.step  # the planner's own model (cimpcc, mpcc: the paper's)
-    x = np.array([*track.xy[0], track.heading_rad[0], 0.0])
-    times, solved, max_e, progress, s_last = [], 0, 0.0, 0.0, 0.0
-    L = track.length_m
-    for _ in range(steps):
-        res = planner.step(*x[:3])
-        times.append(res.solve_time_s * 1e3)
-        solved += res.status == SOLVED
-        max_e = max(max_e, abs(res.e_con_m))
-        progress += (res.s_m - s_last + L / 2) % L - L / 2
-        s_last = res.s_m
-        x = step_numpy(F, x, np.array([res.command.speed_mps, res.command.steering_rad, 0.0]))
-    t = np.asarray(times)
+    # the planner's own model (cimpcc, mpcc: the paper's)
+    plant = ModelPlant(track, planner.problem.step)
+    got = race(planner, plant, None, max_ticks=steps)
+    t = np.asarray(got.solve_times_s) * 1e3
     return {
         "track": track.name,
         "method": method,
@@ -64,9 +55,9 @@ def run(
         "p95_ms": float(np.percentile(t, 95)),
         "p99_ms": float(np.percentile(t, 99)),
         "max_ms": float(t.max()),
-        "success": solved / steps,
-        "laps": progress / L,
-        "max_abs_e_con_m": max_e,
+        "success": got.solved / steps,
+        "laps": plant.progress_m / track.length_m,
+        "max_abs_e_con_m": got.max_abs_e_con_m,
     }
 
 

@@ -13,8 +13,8 @@ racestack laps                   the planner against its own kinematic model
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
+import runpy
 import sys
 from collections.abc import Callable
 
@@ -28,31 +28,22 @@ SERVICES = ("router", "simulator", "localization_bridge", "planner", "telemetry"
 
 def _cmd_laps(args: argparse.Namespace) -> int:
     """Race the planner against its own kinematic model and print lap times."""
-    import numpy as np
-
-    from services.planner.methods import make_planner
-    from services.planner.model import discretise, kinematic_bicycle, step_numpy
+    from services.bench import ModelPlant, race
+    from services.planner import make_planner
     from shared.track import load_track
 
     cfg = load_config(args.config)
     track = load_track(args.track or cfg.track.source)
     settings = cfg.planner.model_copy(update={"method": args.method or cfg.planner.method})
     planner = make_planner(track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
-    F = discretise(kinematic_bicycle(settings.wheelbase_m), settings.dt_s, settings.integrator)
-    x = np.array([*track.xy[0], track.heading_rad[0], 0.0])
-    L, progress, s_last, t, lap_start, laps = track.length_m, 0.0, 0.0, 0.0, 0.0, 0
+    L = track.length_m
     print(f"{settings.method} on {track.name} ({L:.2f} m), kinematic model, {args.laps} laps")
-    while laps < args.laps and t < 120.0 * args.laps:
-        res = planner.step(*x[:3])
-        x = step_numpy(F, x, np.array([res.command.speed_mps, res.command.steering_rad, 0.0]))
-        progress += (res.s_m - s_last + L / 2) % L - L / 2
-        s_last = res.s_m
-        t += settings.dt_s
-        if progress >= (laps + 1) * L:
-            laps += 1
-            print(f"lap {laps}: {t - lap_start:.2f} s")
-            lap_start = t
-    return 0 if laps == args.laps else 1
+    plant = ModelPlant.kinematic(
+        track, settings, on_lap=lambda n, lap_s: print(f"lap {n}: {lap_s:.2f} s")
+    )
+    max_ticks = round(120.0 * args.laps / settings.dt_s)
+    got = race(planner, plant, args.laps, max_ticks=max_ticks)
+    return 0 if got.laps == args.laps else 1
 
 
 def _cmd_up(args: argparse.Namespace) -> int:
@@ -60,7 +51,7 @@ def _cmd_up(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
-    from services.launcher.up import UpOptions, run_up
+    from services.launcher import UpOptions, run_up
     from shared.service_shell import install_stop_handlers
 
     cfg = load_config(args.config)
@@ -74,31 +65,40 @@ def _cmd_up(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    """Run one service in this process (its own shell parses the rest of the line)."""
-    module = importlib.import_module(f"services.{args.service}.service")
-    return int(module.main(args.rest))
+    """Run one service in this process, as ``python -m services.NAME`` would (its own
+    shell parses the rest of the line)."""
+    argv = sys.argv
+    sys.argv = [f"racestack run {args.service}", *args.rest]
+    try:
+        runpy.run_module(f"services.{args.service}", run_name="__main__")
+    except SystemExit as exc:
+        code = exc.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
+    finally:
+        sys.argv = argv
+    return 0
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from services.bench.run import main as bench_main
+    from services.bench import main as bench_main
 
     return bench_main(args=args)
 
 
 def _cmd_mintime(args: argparse.Namespace) -> int:
-    from services.planner.mintime_cli import main as mintime_main
+    from services.planner import mintime_main
 
     return mintime_main(args=args)
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
-    from services.tune.cli import main as tune_main
+    from services.tune import main as tune_main
 
     return tune_main(args=args)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from services.telemetry.report import main as report_main
+    from services.telemetry import report_main
 
     return int(report_main(args.rest))
 
@@ -138,19 +138,19 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("rest", nargs=argparse.REMAINDER, help="the service's own options")
     run.set_defaults(handler=_cmd_run)
 
-    from services.bench.run import build_parser as bench_parser
+    from services.bench import build_parser as bench_parser
 
     bench = sub.add_parser("bench", help="the paper's lap-time experiment (in process)")
     bench_parser(bench)
     bench.set_defaults(handler=_cmd_bench)
 
-    from services.planner.mintime_cli import build_parser as mintime_parser
+    from services.planner import mintime_parser
 
     mintime = sub.add_parser("mintime", help="minimum-time lap of the simulator's car (OCP)")
     mintime_parser(mintime)
     mintime.set_defaults(handler=_cmd_mintime)
 
-    from services.tune.cli import build_parser as tune_parser
+    from services.tune import build_parser as tune_parser
 
     tune = sub.add_parser("tune", help="search a method's parameters for the fastest clean laps")
     tune_parser(tune)

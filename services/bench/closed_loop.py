@@ -16,13 +16,11 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from services.bench.results import LapRecord, MethodRun, Trace
-from services.planner.planner import RECOVERING, SOLVED, Planner
-from services.planner.raceline import RacelinePlanner
-from services.simulator import Command, LapTimer, Simulator
-from services.simulator.laps import centreline_pose
-from services.simulator.state import rear_axle
+from services.bench.race import race
+from services.planner import PlannerLike, SolveResult
+from services.simulator import Command, LapTimer, Simulator, centreline_pose, rear_axle
 from shared.config.simulator import SimulatorSettings
+from shared.evaluation import LapRecord, MethodRun, Trace
 from shared.track import Track
 
 #: The car gives up a method after this long without progress along the track [s].
@@ -54,42 +52,64 @@ class LoopOptions:
 Progress = Callable[[int, int], None]
 
 
-def run_method(
-    name: str,
-    planner: Planner | RacelinePlanner,
-    track: Track,
-    sim_settings: SimulatorSettings,
-    opts: LoopOptions,
-    progress: Progress | None = None,
-) -> MethodRun:
-    """Race `planner` on `track` against a fresh simulator; returns the method's record."""
-    planner.reset()
-    sim = Simulator(sim_settings)
-    start = centreline_pose(track, opts.start_offset_m)
-    sim.reset(start, speed_mps=0.0)
-    veh = sim_settings.vehicle
-    timer = LapTimer(track, width_m=veh.width_m, length_m=veh.length_m)
-    lr = veh.lr_m
-    ts = planner.settings.dt_s
-    step_s = sim_settings.integration_step_s
-    trace = Trace()
-    laps: list[LapRecord] = []
-    solve_ms: list[float] = []
-    failures = 0
-    off_all = off_out = 0
-    cmd = Command(0.0, 0.0)
-    st = sim.state
-    timer.update(sim.t_s, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
-    best_progress, last_progress_t = timer.progress_m, sim.t_s
-    abort_reason = ""
-    max_lap = opts.max_lap_time_s or max(60.0, track.length_m / 1.0)
-    t_limit = (opts.laps + 1.5) * max_lap
-    while len(laps) < opts.laps:
+class SimulatorPlant:
+    """The dynamic ``Simulator`` as a plant of ``race``: the bench's timing model (module
+    docstring), the ``LapTimer``, the trace, the laps and the give-up rules.
+
+    Attributes:
+        sim, timer: the simulator and its lap timer.
+        trace: one row per tick (the state the planner saw, its command).
+        laps: the timed laps.
+        off_all, off_out: off-track events, all and in the out lap.
+    """
+
+    def __init__(
+        self,
+        track: Track,
+        sim_settings: SimulatorSettings,
+        opts: LoopOptions,
+        progress: Progress | None = None,
+    ) -> None:
+        self.opts = opts
+        self.progress = progress
+        self.sim = Simulator(sim_settings)
+        self.sim.reset(centreline_pose(track, opts.start_offset_m), speed_mps=0.0)
+        veh = sim_settings.vehicle
+        self.timer = LapTimer(track, width_m=veh.width_m, length_m=veh.length_m)
+        self.lr = veh.lr_m
+        self.step_s = sim_settings.integration_step_s
+        self.trace = Trace()
+        self.laps: list[LapRecord] = []
+        self.off_all = self.off_out = 0
+        self.cmd = Command(0.0, 0.0)
+        st = self.sim.state
+        self.timer.update(self.sim.t_s, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
+        self.best_progress, self.last_progress_t = self.timer.progress_m, self.sim.t_s
+        self.abort_reason = ""
+        max_lap = opts.max_lap_time_s or max(60.0, track.length_m / 1.0)
+        self.t_limit = (opts.laps + 1.5) * max_lap
+
+    @property
+    def laps_completed(self) -> int:
+        """Timed laps completed."""
+        return len(self.laps)
+
+    @property
+    def stop_reason(self) -> str:
+        """Why the car gave up ("" while it races)."""
+        return self.abort_reason
+
+    def pose(self) -> tuple[float, float, float]:
+        """The car's true rear-axle pose."""
+        st = self.sim.state
+        return rear_axle(st.x_m, st.y_m, st.yaw_rad, self.lr)
+
+    def advance(self, result: SolveResult, period_s: float) -> None:
+        """Record the tick, then drive one period: the previous command during the compute
+        delay, then `result`'s."""
+        sim, timer, trace, opts = self.sim, self.timer, self.trace, self.opts
         st = sim.state
-        px, py, pyaw = rear_axle(st.x_m, st.y_m, st.yaw_rad, lr)
-        res = planner.step(px, py, pyaw)
-        solve_ms.append(res.solve_time_s * 1e3)
-        failures += res.status not in (SOLVED, RECOVERING)
+        res = result
         trace.t_s.append(sim.t_s)
         trace.s_m.append(timer.s_m)
         trace.x_m.append(st.x_m)
@@ -99,23 +119,24 @@ def run_method(
         trace.e_con_m.append(timer.e_con_m)
         trace.beta.append(float(res.beta[0]))
         trace.lap.append(timer.laps_completed + 1 if timer.timing else 0)
+        ts = period_s
         delay = res.solve_time_s if opts.delay_mode == "measured" else opts.compute_delay_s
         delay = min(max(delay, 0.0), ts)
         new_cmd = Command(res.command.speed_mps, res.command.steering_rad)
         # the previous command acts during the compute delay, then the new one
-        chunks = [(cmd, delay)] if delay > 0 else []
+        chunks = [(self.cmd, delay)] if delay > 0 else []
         rest = ts - delay
-        n = max(1, math.ceil(rest / step_s - 1e-9))
+        n = max(1, math.ceil(rest / self.step_s - 1e-9))
         chunks += [(new_cmd, rest / n)] * n
         for c, dt in chunks:
             out = sim.step(c, dt)
             s = out.state
             for ev in timer.update(out.t_s, s.x_m, s.y_m, s.yaw_rad, s.v_mps):
                 if ev.kind == "off_track":
-                    off_all += 1
-                    off_out += not laps and not timer.timing
+                    self.off_all += 1
+                    self.off_out += not self.laps and not timer.timing
                 if ev.kind == "lap" and ev.lap_time_s is not None:
-                    laps.append(
+                    self.laps.append(
                         LapRecord(
                             ev.lap_time_s,
                             ev.mean_speed_mps or 0.0,
@@ -123,22 +144,43 @@ def run_method(
                             ev.max_abs_e_con_m,
                         )
                     )
-                    if progress:
-                        progress(len(laps), opts.laps)
-        cmd = new_cmd
-        if timer.progress_m > best_progress + 0.5:
-            best_progress, last_progress_t = timer.progress_m, sim.t_s
-        if sim.t_s - last_progress_t > STALL_TIMEOUT_S:
-            abort_reason = f"no progress for {STALL_TIMEOUT_S:.0f} s"
+                    if self.progress:
+                        self.progress(len(self.laps), opts.laps)
+        self.cmd = new_cmd
+        if timer.progress_m > self.best_progress + 0.5:
+            self.best_progress, self.last_progress_t = timer.progress_m, sim.t_s
+        if sim.t_s - self.last_progress_t > STALL_TIMEOUT_S:
+            self.abort_reason = f"no progress for {STALL_TIMEOUT_S:.0f} s"
         elif abs(timer.e_con_m) > LOST_E_CON_M:
-            abort_reason = f"lost: {abs(timer.e_con_m):.1f} m from the centreline"
-        elif sim.t_s > t_limit:
-            abort_reason = f"time limit {t_limit:.0f} s"
-        if abort_reason:
-            break
+            self.abort_reason = f"lost: {abs(timer.e_con_m):.1f} m from the centreline"
+        elif sim.t_s > self.t_limit:
+            self.abort_reason = f"time limit {self.t_limit:.0f} s"
+
+
+def run_method(
+    name: str,
+    planner: PlannerLike,
+    track: Track,
+    sim_settings: SimulatorSettings,
+    opts: LoopOptions,
+    progress: Progress | None = None,
+) -> MethodRun:
+    """Race `planner` on `track` against a fresh simulator; returns the method's record."""
+    planner.reset()
+    plant = SimulatorPlant(track, sim_settings, opts, progress)
+    got = race(planner, plant, opts.laps, reset=False)
+    solve_ms = [t * 1e3 for t in got.solve_times_s]
     extra: dict = {"recoveries": planner.recovery.episodes}
-    if abort_reason:
-        extra["aborted"] = abort_reason
+    if plant.abort_reason:
+        extra["aborted"] = plant.abort_reason
     return MethodRun(
-        name, laps, trace, solve_ms, failures, opts.laps, extra, off_all, off_out
+        name,
+        plant.laps,
+        plant.trace,
+        solve_ms,
+        got.failures,
+        opts.laps,
+        extra,
+        plant.off_all,
+        plant.off_out,
     )

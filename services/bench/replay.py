@@ -24,9 +24,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.planner.mintime import MinTimeLap
-from services.planner.mintime_model import DELTA
-from services.planner.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
+from services.planner import (
+    DELTA,
+    MinTimeLap,
+    ReferenceLap,
+    Tracker,
+    TrackerGains,
+    TrackerTiming,
+)
 from services.simulator import Command, LapTimer, Simulator
 from shared.config.simulator import SimulatorSettings
 from shared.track import Track

@@ -35,15 +35,19 @@ import numpy as np
 
 from services.bench.closed_loop import LoopOptions, run_method
 from services.bench.figures import write_figures
-from services.bench.results import MethodRun, results_document, write_results
 from services.bench.table import format_paper_table, format_table
-from services.planner.mintime import MinTimeError, MinTimeSettings
-from services.planner.mintime_store import min_time_lap
-from services.planner.planner import Planner
-from services.planner.raceline import RacelinePlanner
-from services.tune.bench_column import TunedCimpcc, load_tuned, tuned_planner
+from services.planner import (
+    MinTimeError,
+    MinTimeSettings,
+    Planner,
+    PlannerLike,
+    RacelinePlanner,
+    min_time_lap,
+)
+from services.tune import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.planner import MethodWeights
+from shared.evaluation import MethodRun, results_document, write_results
 from shared.track import Track, TrackError, load_track
 
 METHODS = ("cimpcc", "mpcc", "mpcc-tuned", "raceline", "cimpcc-line", "cimpcc-tuned")
@@ -212,11 +216,11 @@ def run_bench(
     for name in methods:
         t0 = time.perf_counter()
         method = "cimpcc" if name == "cimpcc" else "mpcc"
-        planner: Planner | RacelinePlanner
+        planner: PlannerLike
         extra: dict = {}
         if baseline is not None and name == "raceline":
             planner = baseline
-            extra = {"profile_lap_time_s": round(planner.raceline.lap_time_s, 3)}
+            extra = {"profile_lap_time_s": round(baseline.raceline.lap_time_s, 3)}
         elif name == "cimpcc-tuned":
             tuned = tuned or load_tuned(None, cfg)
             planner, extra = tuned_planner(track, cfg, tuned, base), tuned.extra()

@@ -1,0 +1,62 @@
+"""The planner core: the MPC methods (CiMPCC, MPCC, CiMPCC on the minimum-time line), the
+raceline baseline, the minimum-time lap; ``service.py`` is the shell (``python -m
+services.planner``). What tools may use (``docs/architecture.md``, rule 3) is ``__all__``:
+
+- ``make_planner(track, settings, curvature, vehicle)`` -> a ``PlannerLike`` (``Planner``
+  or ``RacelinePlanner``): ``step(x, y, yaw, on_command) -> SolveResult``, ``prepare``,
+  ``reset``, ``settings``, ``recovery``, ``track``, ``profile``, ``horizon``;
+- the kinematic model the MPC plans with: ``kinematic_bicycle``, ``discretise``,
+  ``step_numpy``;
+- the minimum-time lap (``MinTimeLap``, ``MinTimeSettings``, ``MinTimeError``,
+  ``min_time_lap``: solved once, then cached) and its tracker (``Tracker``, ...);
+- the ``racestack mintime`` command line (``mintime_parser``, ``mintime_main``).
+"""
+
+from services.planner.interface import PlannerLike
+from services.planner.methods import make_planner
+from services.planner.mintime import MinTimeError, MinTimeLap, MinTimeSettings
+from services.planner.mintime_cli import build_parser as mintime_parser
+from services.planner.mintime_cli import main as mintime_main
+from services.planner.mintime_model import DELTA
+from services.planner.mintime_store import min_time_lap
+from services.planner.model import discretise, kinematic_bicycle, step_numpy
+from services.planner.planner import (
+    BRAKING,
+    FALLBACK,
+    RECOVERING,
+    SOLVED,
+    DriveCommand,
+    Planner,
+    SolveResult,
+)
+from services.planner.raceline import RacelinePlanner
+from services.planner.recovery import Recovery
+from services.planner.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
+
+__all__ = [
+    "BRAKING",
+    "DELTA",
+    "FALLBACK",
+    "RECOVERING",
+    "SOLVED",
+    "DriveCommand",
+    "MinTimeError",
+    "MinTimeLap",
+    "MinTimeSettings",
+    "Planner",
+    "PlannerLike",
+    "RacelinePlanner",
+    "Recovery",
+    "ReferenceLap",
+    "SolveResult",
+    "Tracker",
+    "TrackerGains",
+    "TrackerTiming",
+    "discretise",
+    "kinematic_bicycle",
+    "make_planner",
+    "min_time_lap",
+    "mintime_main",
+    "mintime_parser",
+    "step_numpy",
+]

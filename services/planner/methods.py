@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from services.planner.interface import PlannerLike
 from services.planner.planner import Planner
 from services.planner.raceline import RacelinePlanner
 from shared.config.planner import CurvatureSettings, PlannerSettings
@@ -14,7 +15,7 @@ def make_planner(
     settings: PlannerSettings,
     curvature: CurvatureSettings | None = None,
     vehicle: DynamicVehicleParams | None = None,
-) -> Planner | RacelinePlanner:
+) -> PlannerLike:
     """``settings.method``: "cimpcc" or "mpcc" (one MPC problem on the centreline),
     "cimpcc-line" (the same problem builder on the minimum-time line of `vehicle`) or
     "raceline" (the baseline: a line tracked by a pursuit controller); all have

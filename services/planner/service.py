@@ -26,9 +26,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from services.planner.interface import PlannerLike
 from services.planner.methods import make_planner
-from services.planner.planner import DriveCommand, Planner, SolveResult
-from services.planner.raceline import RacelinePlanner
+from services.planner.planner import DriveCommand, SolveResult
 from shared.bus import Bus, ChannelSubscription
 from shared.config import RacestackConfig
 from shared.keys import DRIVE_CMD, EVENTS_LOG, PLAN, STATE
@@ -72,7 +72,7 @@ class PlannerShell(Service):
         publishes(EVENTS_LOG, LogEvent),
     )
 
-    def __init__(self, planner: Planner | RacelinePlanner, bus: Bus) -> None:
+    def __init__(self, planner: PlannerLike, bus: Bus) -> None:
         super().__init__(bus, period_s=planner.settings.dt_s)
         self.planner = planner
         self.period = planner.settings.dt_s

@@ -9,3 +9,18 @@
 - ``report``: reads a recording back into the lap table and figures of
   ``shared.evaluation``.
 """
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+
+def report_main(argv: Sequence[str] | None = None) -> int:
+    """``racestack report`` (``services.telemetry.report.main``, imported when called: it
+    reads recordings with Rerun and draws with matplotlib)."""
+    from services.telemetry.report import main
+
+    return int(main(argv))
+
+
+__all__ = ["report_main"]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from services.planner.planner import Planner
+from services.planner import Planner
 from shared.config import RacestackConfig, load_config
 from shared.config.planner import CurvatureSettings, MethodWeights
 from shared.track import Track

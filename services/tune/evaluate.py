@@ -23,11 +23,15 @@ from typing import Any
 
 import numpy as np
 
-from services.bench.closed_loop import LoopOptions, run_method
-from services.bench.results import MethodRun
-from services.planner.planner import RECOVERING, Planner, SolveResult
-from services.planner.raceline import RacelinePlanner
-from services.planner.recovery import Recovery
+from services.bench import LoopOptions, run_method
+from services.planner import (
+    RECOVERING,
+    Planner,
+    PlannerLike,
+    RacelinePlanner,
+    Recovery,
+    SolveResult,
+)
 from services.tune.search import (
     Overlay,
     Params,
@@ -41,6 +45,8 @@ from services.tune.search import (
 )
 from shared.config import RacestackConfig, config_from_dict
 from shared.config.planner import PlannerSettings
+from shared.curvature import CurvatureProfile
+from shared.evaluation import MethodRun
 from shared.track import Track
 
 #: The bench's start: this far past the start line [m]; each seed adds U(0, spread).
@@ -107,12 +113,12 @@ class RunAbortedError(RuntimeError):
 class NoisyPose:
     """A planner seen through a noisy pose, stopping the run when the car is lost.
 
-    Has the interface ``run_method`` uses (``step``, ``reset``, ``settings``, ``recovery``).
+    A ``PlannerLike`` (``run_method`` uses ``step``, ``reset``, ``settings``, ``recovery``).
     """
 
     def __init__(
         self,
-        planner: Planner | RacelinePlanner,
+        planner: PlannerLike,
         track: Track,
         rng: np.random.Generator,
         std_xy_m: float,
@@ -133,9 +139,23 @@ class NoisyPose:
         """The planner's recovery rule."""
         return self.inner.recovery
 
+    @property
+    def profile(self) -> CurvatureProfile:
+        """The planner's curvature profile."""
+        return self.inner.profile
+
+    @property
+    def horizon(self) -> int:
+        """The planner's horizon."""
+        return self.inner.horizon
+
     def reset(self) -> None:
         """Reset the planner."""
         self.inner.reset()
+
+    def prepare(self) -> None:
+        """The planner's prepare."""
+        self.inner.prepare()
 
     def step(self, x_m: float, y_m: float, yaw_rad: float, on_command=None) -> SolveResult:
         """The planner's step on the noisy pose; RunAbortedError once the car is lost."""
@@ -200,7 +220,7 @@ class Evaluator:
         cfg = config_from_dict(deep_merge(self.base_data, overlay), "trial configuration")
         return overlay, cfg
 
-    def planner_for(self, cfg: RacestackConfig) -> Planner | RacelinePlanner:
+    def planner_for(self, cfg: RacestackConfig) -> PlannerLike:
         """A planner of the method with `cfg`'s settings (MPC problems built once)."""
         if self.space.method == "raceline":
             return RacelinePlanner(
@@ -217,7 +237,7 @@ class Evaluator:
             solver=self._shared.solver,
         )
 
-    def run_seed(self, planner: Planner | RacelinePlanner, cfg: RacestackConfig, seed: int
+    def run_seed(self, planner: PlannerLike, cfg: RacestackConfig, seed: int
                  ) -> SeedResult:
         """Race one seed (see the module docstring)."""
         st = self.settings

@@ -14,7 +14,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from services.bench.closed_loop import LoopOptions, run_method
+from services.bench import LoopOptions, run_method
 from services.bench.run import main as bench_main
 from services.planner.methods import make_planner
 from services.planner.model import S, SlipModel, U, discretise, kinematic_bicycle, step_numpy

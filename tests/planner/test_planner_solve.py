@@ -7,8 +7,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services.planner.model import discretise, kinematic_bicycle, step_numpy
-from services.planner.planner import BRAKING, FALLBACK, SOLVED, Planner
+from services.bench import ModelPlant, race
+from services.planner import (
+    BRAKING,
+    FALLBACK,
+    SOLVED,
+    Planner,
+    SolveResult,
+    discretise,
+    kinematic_bicycle,
+    step_numpy,
+)
 from services.planner.problem import build_problem
 from services.planner.solver import make_solver
 from shared.config.planner import PlannerSettings, SolverSettings
@@ -73,14 +82,10 @@ def test_first_solve_on_a_straight_is_the_qp_optimum() -> None:
 
 def closed_loop(planner: Planner, x0: np.ndarray, steps: int) -> tuple[list, np.ndarray]:
     """Close the planner with its own kinematic model; returns the results and last state."""
-    F = discretise(kinematic_bicycle(planner.settings.wheelbase_m), planner.settings.dt_s)
-    x = np.asarray(x0, dtype=float)
-    out = []
-    for _ in range(steps):
-        res = planner.step(*x[:3])
-        out.append(res)
-        x = step_numpy(F, x, np.array([res.command.speed_mps, res.command.steering_rad, 0.0]))
-    return out, x
+    plant = ModelPlant.kinematic(planner.track, planner.settings, x0)
+    out: list = []
+    race(planner, plant, None, max_ticks=steps, on_tick=out.append)
+    return out, plant.x
 
 
 def test_steady_command_on_straight_and_circle() -> None:
@@ -106,21 +111,16 @@ def test_steady_command_on_straight_and_circle() -> None:
 
 def lap(planner: Planner, track: Track, max_steps: int = 800) -> tuple[float, float]:
     """Race one lap from the start line against the kinematic model: (lap time, max |e_con|)."""
-    F = discretise(kinematic_bicycle(planner.settings.wheelbase_m), planner.settings.dt_s)
-    x = np.array([*track.xy[0], track.heading_rad[0], 0.0])
-    progress, s_last, max_e = 0.0, 0.0, 0.0
-    L = track.length_m
-    for k in range(max_steps):
-        res = planner.step(*x[:3])
+
+    def check(res: SolveResult) -> None:
         assert res.status == SOLVED, res.solver_status
         assert np.isfinite([res.command.speed_mps, res.command.steering_rad]).all()
-        max_e = max(max_e, abs(res.e_con_m))
-        progress += (res.s_m - s_last + L / 2) % L - L / 2
-        s_last = res.s_m
-        if progress >= L:
-            return k * planner.settings.dt_s, max_e
-        x = step_numpy(F, x, np.array([res.command.speed_mps, res.command.steering_rad, 0.0]))
-    raise AssertionError(f"no lap in {max_steps} steps (progress {progress:.1f} of {L:.1f} m)")
+
+    plant = ModelPlant.kinematic(track, planner.settings)
+    got = race(planner, plant, 1, max_ticks=max_steps, on_tick=check)
+    L = track.length_m
+    assert got.laps == 1, f"no lap in {max_steps} steps ({plant.progress_m:.1f} of {L:.1f} m)"
+    return plant.lap_times_s[0], got.max_abs_e_con_m
 
 
 CAR_HALF_WIDTH_M = 0.155

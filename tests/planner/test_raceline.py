@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from services.bench import ModelPlant, race
+from services.planner import BRAKING, SOLVED, SolveResult
 from services.planner.mintime import MinTimeLap
-from services.planner.model import discretise, kinematic_bicycle, step_numpy
-from services.planner.planner import BRAKING, SOLVED
 from services.planner.raceline import (
     RacelinePlanner,
     build_raceline,
@@ -79,24 +79,19 @@ def test_the_tracker_laps_the_default_track_inside_against_the_model() -> None:
     tr = load_track("paperlike")
     settings = MIN_CURVATURE_PLANNER
     planner = RacelinePlanner(tr, settings)
-    F = discretise(kinematic_bicycle(settings.wheelbase_m), settings.dt_s)
-    x = np.array([*tr.xy[0], tr.heading_rad[0], 0.0])
-    progress, s_last, L = 0.0, 0.0, tr.length_m
     w_min = float(min(tr.w_right_m.min(), tr.w_left_m.min()))
-    for _ in range(600):
-        res = planner.step(*x[:3])
+
+    def check(res: SolveResult) -> None:
         assert res.status == SOLVED and res.method == "raceline"
         assert abs(res.command.steering_rad) <= settings.bounds.delta_rad[1] + 1e-12
         # the rear axle stays inside; the kinematic car needs neither the understeer nor
         # the slip the tracker's feed-forward plans for the real one (17 cm off the line)
         assert abs(res.e_con_m) < w_min - 0.1
         assert res.states.shape == (settings.horizon_steps + 1, 4)
-        progress += (res.s_m - s_last + L / 2) % L - L / 2
-        s_last = res.s_m
-        if progress >= L:
-            break
-        x = step_numpy(F, x, np.array([res.command.speed_mps, res.command.steering_rad, 0.0]))
-    assert progress >= L
+
+    plant = ModelPlant.kinematic(tr, settings)
+    got = race(planner, plant, 1, max_ticks=600, on_tick=check)
+    assert got.laps == 1 and plant.progress_m >= tr.length_m
 
 
 def test_a_bad_pose_gives_a_braking_command() -> None:
@@ -280,7 +275,7 @@ def test_the_planning_car_has_the_planner_s_steering_range() -> None:
 
 
 def _race(track: Track, laps: int):
-    from services.bench.closed_loop import LoopOptions, run_method
+    from services.bench import LoopOptions, run_method
     from shared.config import load_config
 
     cfg = load_config(None)

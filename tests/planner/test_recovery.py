@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from services.bench.closed_loop import LoopOptions, run_method
+from services.bench import LoopOptions, run_method
 from services.planner.planner import RECOVERING, SOLVED, Planner
 from services.planner.recovery import Recovery
 from shared.config import RacestackConfig

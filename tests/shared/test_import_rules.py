@@ -30,52 +30,9 @@ TOOLS = frozenset({"bench", "launcher", "tune", "cli"})
 
 #: Violations that need files owned by others, as "importer -> imported" (no line numbers,
 #: so unrelated edits do not break the list). Remove an entry when its follow-up lands.
-KNOWN = frozenset(
-    {
-        # Follow-up A (planner owners): services/planner/__init__.py exports what the tools
-        # use (Planner, RacelinePlanner, SolveResult, SOLVED, RECOVERING, make_planner,
-        # Recovery, MinTimeLap, MinTimeSettings, MinTimeError, min_time_lap, DELTA, Tracker,
-        # ReferenceLap, TrackerGains, TrackerTiming, discretise, kinematic_bicycle,
-        # step_numpy, the mintime command line); then bench, tune and cli import them from
-        # ``services.planner``.
-        "services/bench/closed_loop.py -> services.planner.planner",
-        "services/bench/closed_loop.py -> services.planner.raceline",
-        "services/bench/replay.py -> services.planner.mintime",
-        "services/bench/replay.py -> services.planner.mintime_model",
-        "services/bench/replay.py -> services.planner.tracker",
-        "services/bench/run.py -> services.planner.mintime",
-        "services/bench/run.py -> services.planner.mintime_store",
-        "services/bench/run.py -> services.planner.planner",
-        "services/bench/run.py -> services.planner.raceline",
-        "services/tune/bench_column.py -> services.planner.planner",
-        "services/tune/evaluate.py -> services.planner.planner",
-        "services/tune/evaluate.py -> services.planner.raceline",
-        "services/tune/evaluate.py -> services.planner.recovery",
-        "services/cli.py -> services.planner.methods",
-        "services/cli.py -> services.planner.mintime_cli",
-        "services/cli.py -> services.planner.model",
-        # Follow-up B (bench owners): services/bench/closed_loop.py imports centreline_pose
-        # and rear_axle from ``services.simulator`` (both exported there now).
-        "services/bench/closed_loop.py -> services.simulator.laps",
-        "services/bench/closed_loop.py -> services.simulator.state",
-        # Follow-up C (bench + tune owners): services/bench/__init__.py and
-        # services/tune/__init__.py export their public API (the closed loop, MethodRun via
-        # shared.evaluation, the tuned column, the command lines); bench/run.py and
-        # tune/evaluate.py import from there (MethodRun from shared.evaluation).
-        "services/bench/run.py -> services.tune.bench_column",
-        "services/tune/evaluate.py -> services.bench.closed_loop",
-        "services/tune/evaluate.py -> services.bench.results",
-        # Follow-up D (cli owner): services/cli.py composes the tools through their package
-        # API (services.bench, services.tune, services.launcher, services.telemetry.report's
-        # main exported by services.telemetry) and starts a service by ``python -m`` (runpy)
-        # instead of importing its inner ``service`` module.
-        "services/cli.py -> services.bench.run",
-        "services/cli.py -> services.launcher.up",
-        "services/cli.py -> services.telemetry.report",
-        "services/cli.py -> services.tune.cli",
-        "services/cli.py -> services.<name>.service (importlib)",
-    }
-)
+KNOWN: frozenset[str] = frozenset()
+# (Follow-ups A-D of issue #11 landed: the planner, bench, tune, launcher and telemetry
+# packages export what the tools use; services/cli.py starts a service with runpy.)
 
 
 @dataclass(frozen=True)
@@ -208,7 +165,7 @@ def test_the_walker_sees_every_kind_of_import() -> None:
         (6, "services.tune", ["sibling"]),
     ]
     assert "LapTimer" in public_api("simulator")
-    assert public_api("launcher") == frozenset()  # no __init__: no public API
+    assert public_api("no_such_service") == frozenset()  # no __init__: no public API
 
 
 def test_no_import_breaks_the_layers() -> None:
