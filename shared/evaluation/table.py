@@ -57,7 +57,7 @@ def format_table(doc: dict[str, Any]) -> str:
     row_laps = f"{'completed laps':>24}"
     row_off = f"{'off-track (all laps)':>24}"
     row_e = f"{'max |e_con| [m]':>24}"
-    row_t = f"{'solve p95/p99 [ms]':>24}"
+    row_t = f"{'solve median/p99 [ms]':>24}"
     for n in names:
         m = methods[n]
         laps = f"{m['completed_laps']}/{m.get('requested_laps', m['completed_laps'])}"
@@ -67,7 +67,7 @@ def format_table(doc: dict[str, Any]) -> str:
         e = max((lap["max_abs_e_con_m"] for lap in m["laps"]), default=None)
         row_e += f"{_fmt(e):>{width}}{'':>10}"
         st = m["solve_time_ms"]
-        t = "-" if st["p95"] is None else f"{st['p95']:.2f}/{st['p99']:.2f}"
+        t = "-" if st["median"] is None else f"{st['median']:.2f}/{st['p99']:.2f}"
         row_t += f"{t:>{width}}{'':>10}"
     lines += [row_laps, row_off, row_e, row_t]
     if ref:
