@@ -48,6 +48,7 @@ from services.tune import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.planner import MethodWeights
 from shared.evaluation import MethodRun, results_document, write_results
+from shared.outdir import writable_dir_problem
 from shared.track import Track, TrackError, load_track
 
 METHODS = ("cimpcc", "mpcc", "mpcc-tuned", "raceline", "cimpcc-line", "cimpcc-tuned")
@@ -76,13 +77,9 @@ def parse_methods(text: str) -> list[str]:
 
 def check_out_dir(path: Path) -> None:
     """Create the output folder and prove it is writable."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".write-test"
-        probe.write_text("ok")
-        probe.unlink()
-    except OSError as exc:
-        raise BenchError(f"output folder {path} is not writable ({exc.strerror or exc})") from None
+    problem = writable_dir_problem(path)
+    if problem:
+        raise BenchError(problem)
 
 
 class ProgressBar:

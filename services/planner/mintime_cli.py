@@ -27,6 +27,7 @@ from services.planner.mintime import CODE_VERSION, MinTimeLap, MinTimeSettings
 from services.planner.mintime_store import min_time_lap
 from shared.config import ConfigError, load_config
 from shared.config.vehicle import DynamicVehicleParams
+from shared.outdir import writable_dir_problem
 from shared.track import RacelineTable, Track, TrackError, load_track, write_f1tenth_raceline
 
 PROG = "racestack mintime"
@@ -163,15 +164,9 @@ def _number(text: str | None, name: str) -> float | None:
 
 
 def _check_out_dir(path: Path) -> None:
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".write-test"
-        probe.write_text("ok")
-        probe.unlink()
-    except OSError as exc:
-        raise MinTimeArgumentError(
-            f"output folder {path} is not writable ({exc.strerror or exc})"
-        ) from None
+    problem = writable_dir_problem(path)
+    if problem:
+        raise MinTimeArgumentError(problem)
 
 
 def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:

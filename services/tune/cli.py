@@ -44,6 +44,7 @@ from services.tune.search import (
     space_for,
 )
 from shared.config import ConfigError, load_config
+from shared.outdir import writable_dir_problem
 from shared.track import Track, TrackError, load_track
 
 if TYPE_CHECKING:  # optuna is imported only when a study runs
@@ -103,14 +104,9 @@ def track_source(spec: str, track: Track) -> str:
 
 def check_out_dir(out: Path, name: str, storage: str) -> None:
     """Create DIR; a DIR that holds the outputs of another study is an error."""
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".write-test"
-        probe.write_text("ok")
-        probe.unlink()
-    except OSError as exc:
-        raise TuneArgumentError(f"output folder {out} is not writable "
-                                f"({exc.strerror or exc})") from None
+    problem = writable_dir_problem(out)
+    if problem:
+        raise TuneArgumentError(problem)
     doc_path = out / "trials.json"
     if doc_path.exists():
         try:
