@@ -226,6 +226,9 @@ class Evaluator:
             return RacelinePlanner(
                 self.track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle
             )
+        if self.space.method == "cimpcc-line":  # its own problem (N, model) and line
+            settings = cfg.planner.model_copy(update={"method": "cimpcc-line"})
+            return Planner(self.track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
         if self._shared is None:
             self._shared = Planner(self.track, self.base_cfg.planner, self.base_cfg.curvature)
         return Planner(

@@ -31,9 +31,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from shared.config import RacestackConfig
+from shared.config.planner import CIMPCC_LINE_WEIGHTS
 
 #: The methods ``racestack tune`` knows.
-METHODS = ("cimpcc", "mpcc", "raceline")
+METHODS = ("cimpcc", "mpcc", "raceline", "cimpcc-line")
 #: v_l = V_RATIO * v_p in every velocity pair (the paper's pairs).
 V_RATIO = 1.1
 #: Value [s] of a trial that drove no complete set of laps (it is infeasible anyway).
@@ -235,6 +236,61 @@ def raceline_space(v_max_mps: float, line: str = "min_time") -> SearchSpace:
     return SearchSpace("raceline", params, overlay, from_config)
 
 
+def cimpcc_line_space(v_max_mps: float) -> SearchSpace:
+    """cimpcc-line (``[planner.cimpcc_line]``): the cost's contouring, lag, steering-rate,
+    speed-pull and progress weights, the pose lead, and the minimum-time line it follows
+    (grip share and footprint margin, each rounded to 0.01: every value is one cached
+    minimum-time solve). The top speed is `v_max_mps`, like the other methods' cap."""
+    params = (
+        ParamSpec("q_contour", 100.0, 5000.0, True, "Q contouring weight"),
+        ParamSpec("q_lag", 100.0, 5000.0, True, "Q lag weight"),
+        ParamSpec("r1_delta", 50.0, 3500.0, True, "R1 weight of the steering rate"),
+        ParamSpec("r3", 4.0, 400.0, True, "R3 = diag(r3, r3): pull towards the profile speed"),
+        ParamSpec("gamma", 4.0, 400.0, True, "progress reward gamma"),
+        ParamSpec("lead_pose_s", 0.0, 0.08, False, "plan from the pose this far ahead [s]"),
+        ParamSpec("grip_fraction", 0.93, 1.0, False, "the line's share of the tyres' mu"),
+        ParamSpec("line_margin_m", 0.03, 0.08, False, "the line's footprint margin [m]"),
+    )
+
+    def overlay(p: Params) -> Overlay:
+        base = CIMPCC_LINE_WEIGHTS
+        r1 = base.r1_delta_u
+        r3 = round_sig(p["r3"])
+        return {
+            "planner": {
+                "cimpcc_line": {
+                    "weights": {
+                        "q_contour": round_sig(p["q_contour"]),
+                        "q_lag": round_sig(p["q_lag"]),
+                        "r1_delta_u": [r1[0], round_sig(p["r1_delta"]), r1[2]],
+                        "r3_velocity": [r3, r3],
+                        "gamma": round_sig(p["gamma"]),
+                    },
+                    "lead_pose_s": round(p["lead_pose_s"], 3),
+                    "grip_fraction": round(p["grip_fraction"], 2),
+                    "line_margin_m": round(p["line_margin_m"], 2),
+                    "v_max_mps": float(v_max_mps),
+                }
+            }
+        }
+
+    def from_config(cfg: RacestackConfig) -> dict[str, float]:
+        line = cfg.planner.cimpcc_line
+        w = line.weights
+        return {
+            "q_contour": w.q_contour,
+            "q_lag": w.q_lag,
+            "r1_delta": w.r1_delta_u[1],
+            "r3": w.r3_velocity[1],
+            "gamma": w.gamma,
+            "lead_pose_s": line.lead_pose_s,
+            "grip_fraction": line.grip_fraction,
+            "line_margin_m": line.line_margin_m,
+        }
+
+    return SearchSpace("cimpcc-line", params, overlay, from_config)
+
+
 def space_for(method: str, v_max_mps: float, cfg: RacestackConfig | None = None) -> SearchSpace:
     """The search space of `method` with top speed `v_max_mps` (the raceline's depends on
     `cfg`'s line kind); UnknownMethodError for a method tune does not know."""
@@ -246,6 +302,8 @@ def space_for(method: str, v_max_mps: float, cfg: RacestackConfig | None = None)
         return cimpcc_space(v_max_mps)
     if method == "mpcc":
         return mpcc_space(v_max_mps)
+    if method == "cimpcc-line":
+        return cimpcc_line_space(v_max_mps)
     return raceline_space(v_max_mps, (cfg or RacestackConfig()).planner.raceline.line)
 
 
@@ -273,6 +331,10 @@ def complete_overlay(overlay: Overlay, cfg: RacestackConfig) -> Overlay:
         if name in planner:
             full = getattr(cfg.planner, name).model_dump(mode="json")
             out["planner"][name] = deep_merge(full, planner[name])
+    line = planner.get("cimpcc_line", {})
+    if "weights" in line:
+        full = cfg.planner.cimpcc_line.weights.model_dump(mode="json")
+        out["planner"]["cimpcc_line"]["weights"] = deep_merge(full, line["weights"])
     return out
 
 

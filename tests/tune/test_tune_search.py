@@ -41,7 +41,7 @@ def test_cimpcc_baseline_is_the_papers_configuration() -> None:
 
 def test_mpcc_and_raceline_baselines_are_the_defaults() -> None:
     d = RacestackConfig()
-    for method in ("mpcc", "raceline"):
+    for method in ("mpcc", "raceline", "cimpcc-line"):
         space = space_for(method, 4.18)
         assert _config(complete_overlay(space.overlay(space.baseline(d)), d)) == d
     assert MPCC_WEIGHTS.u_ref == (3.3, 0.0, 3.0)
@@ -64,7 +64,20 @@ def test_raceline_space_names_existing_settings(line: str) -> None:
     assert set(space.names()) <= fields
 
 
-@pytest.mark.parametrize("method", ["cimpcc", "mpcc", "raceline"])
+def test_a_tuned_cimpcc_line_keeps_its_own_weights() -> None:
+    """A partial [planner.cimpcc_line.weights] table is completed from cimpcc-line's own
+    weights (R1 steering 500), not CiMPCC's class defaults (3500)."""
+    d = RacestackConfig()
+    space = space_for("cimpcc-line", 4.18)
+    point = space.baseline(d) | {"q_lag": 1200.0, "grip_fraction": 0.973}
+    line = _config(complete_overlay(space.overlay(point), d)).planner.cimpcc_line
+    assert line.weights.q_lag == 1200.0
+    assert line.weights.r1_delta_u == d.planner.cimpcc_line.weights.r1_delta_u
+    assert line.weights.r2_input == d.planner.cimpcc_line.weights.r2_input
+    assert line.grip_fraction == 0.97  # rounded: one cached minimum-time solve per value
+
+
+@pytest.mark.parametrize("method", ["cimpcc", "mpcc", "raceline", "cimpcc-line"])
 def test_every_point_of_a_space_is_a_valid_configuration(method: str) -> None:
     space = space_for(method, 4.18)
     rng = np.random.default_rng(3)
@@ -80,6 +93,9 @@ def test_every_point_of_a_space_is_a_valid_configuration(method: str) -> None:
             assert w.v_up_mps[0] == pytest.approx(1.1 * w.v_up_mps[1], abs=0.006)
         if method == "raceline":
             assert cfg.planner.raceline.v_max_mps == 4.18
+        if method == "cimpcc-line":
+            assert cfg.planner.cimpcc_line.v_max_mps == 4.18
+            assert cfg.planner.cimpcc_line.grip_fraction == round(point["grip_fraction"], 2)
 
 
 def test_speed_pairs_and_top_speed() -> None:
