@@ -16,6 +16,7 @@ from pydantic import Field, ValidationError
 
 from shared.config.base import ConfigError, Section
 from shared.config.bus import BusSettings
+from shared.config.lidar import LidarDriverSettings
 from shared.config.localization import LocalizationSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
 from shared.config.simulator import SimulatorSettings
@@ -39,6 +40,7 @@ class RacestackConfig(Section):
     simulator: SimulatorSettings = SimulatorSettings()
     localization: LocalizationSettings = LocalizationSettings()
     vesc: VescSettings = VescSettings()
+    lidar_driver: LidarDriverSettings = LidarDriverSettings()
     telemetry: TelemetrySettings = TelemetrySettings()
 
 

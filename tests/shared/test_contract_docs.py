@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from services.launcher.up import Launcher
+from services.lidar_driver.service import LidarService
 from services.localization_bridge.service import BridgeService
 from services.planner.service import PlannerShell
 from services.router.service import Router
@@ -36,6 +37,7 @@ PARTICIPANTS: tuple[type[Service], ...] = (
     TelemetryService,
     Router,
     Launcher,
+    LidarService,
 )
 ALIVE_ROW = f"{ALIVE}/<service>"
 COLUMNS = ("key", "message", "fields", "rate", "qos", "publishers", "subscribers")

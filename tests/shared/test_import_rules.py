@@ -23,7 +23,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 #: Services that run as their own process.
 PROCESS_SERVICES = frozenset(
-    {"simulator", "localization_bridge", "planner", "vesc_driver", "telemetry", "router"}
+    {
+        "simulator",
+        "localization_bridge",
+        "planner",
+        "vesc_driver",
+        "telemetry",
+        "router",
+        "lidar_driver",
+    }
 )
 #: Tools that compose services in one process (``cli`` is ``services/cli.py``).
 TOOLS = frozenset({"bench", "launcher", "tune", "cli"})
