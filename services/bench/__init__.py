@@ -7,6 +7,8 @@ What other tools, benchmarks and tests use (``__all__``):
   ``SimulatorPlant``: the dynamic simulator with the bench's timing model);
 - ``run_method(name, planner, track, sim_settings, LoopOptions)`` -> ``MethodRun`` (the
   simulator plant, the bench's record);
+- localisation in the loop: ``LoopOptions(estimator="ekf" | "lidar")`` runs the
+  simulator's sensors through the bridge's filter (``InLoopEstimator``, ``ESTIMATORS``);
 - the command line: ``build_parser``, ``main`` (imported when called: the bench's command
   line imports the tuner's column, which imports this package).
 """
@@ -22,6 +24,7 @@ from services.bench.closed_loop import (
     SimulatorPlant,
     run_method,
 )
+from services.bench.estimation import ESTIMATORS, InLoopEstimator
 from services.bench.race import ModelPlant, Plant, RaceResult, race
 
 
@@ -40,8 +43,10 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
 
 
 __all__ = [
+    "ESTIMATORS",
     "LOST_E_CON_M",
     "STALL_TIMEOUT_S",
+    "InLoopEstimator",
     "LoopOptions",
     "ModelPlant",
     "Plant",

@@ -16,9 +16,11 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from services.bench.estimation import InLoopEstimator
 from services.bench.race import race
 from services.planner import PlannerLike, SolveResult
 from services.simulator import Command, LapTimer, Simulator, centreline_pose, rear_axle
+from shared.config.localization import LocalizationSettings
 from shared.config.simulator import SimulatorSettings
 from shared.evaluation import LapRecord, MethodRun, Trace
 from shared.track import Track
@@ -40,6 +42,9 @@ class LoopOptions:
         start_offset_m: the car starts this far past the start line [m].
         max_lap_time_s: give up when a lap takes longer [s]; None: 60 s, or a lap at
             1 m/s on a longer track (the full-size F1TENTH maps are 260-460 m).
+        estimator: what pose the planner sees: "truth" (the true rear axle), "ekf" or
+            "lidar" (``services.bench.estimation``: the simulator's sensors through the
+            bridge's filter); `localization`: its ``[localization]`` settings.
     """
 
     laps: int = 17
@@ -47,6 +52,8 @@ class LoopOptions:
     compute_delay_s: float = 0.002
     start_offset_m: float = 0.3
     max_lap_time_s: float | None = None
+    estimator: str = "truth"
+    localization: LocalizationSettings | None = None
 
 
 Progress = Callable[[int, int], None]
@@ -88,6 +95,16 @@ class SimulatorPlant:
         self.abort_reason = ""
         max_lap = opts.max_lap_time_s or max(60.0, track.length_m / 1.0)
         self.t_limit = (opts.laps + 1.5) * max_lap
+        self.estimator: InLoopEstimator | None = None
+        if opts.estimator != "truth":
+            self.estimator = InLoopEstimator(
+                opts.estimator,
+                track,
+                sim_settings,
+                opts.localization or LocalizationSettings(),
+                self.true_pose(),
+                self.sim.t_s,
+            )
 
     @property
     def laps_completed(self) -> int:
@@ -99,10 +116,16 @@ class SimulatorPlant:
         """Why the car gave up ("" while it races)."""
         return self.abort_reason
 
-    def pose(self) -> tuple[float, float, float]:
+    def true_pose(self) -> tuple[float, float, float]:
         """The car's true rear-axle pose."""
         st = self.sim.state
         return rear_axle(st.x_m, st.y_m, st.yaw_rad, self.lr)
+
+    def pose(self) -> tuple[float, float, float]:
+        """The pose the planner sees: the truth, or the estimator's estimate now."""
+        if self.estimator is None:
+            return self.true_pose()
+        return self.estimator.pose(self.sim.t_s, self.true_pose())
 
     def advance(self, result: SolveResult, period_s: float) -> None:
         """Record the tick, then drive one period: the previous command during the compute
@@ -130,6 +153,8 @@ class SimulatorPlant:
         chunks += [(new_cmd, rest / n)] * n
         for c, dt in chunks:
             out = sim.step(c, dt)
+            if self.estimator is not None:
+                self.estimator.feed(out)
             s = out.state
             for ev in timer.update(out.t_s, s.x_m, s.y_m, s.yaw_rad, s.v_mps):
                 if ev.kind == "off_track":
@@ -173,6 +198,8 @@ def run_method(
     extra: dict = {"recoveries": planner.recovery.episodes}
     if plant.abort_reason:
         extra["aborted"] = plant.abort_reason
+    if plant.estimator is not None:
+        extra["localisation"] = plant.estimator.errors()
     return MethodRun(
         name,
         plant.laps,

@@ -1,1 +1,26 @@
-"""Pose, IMU and wheel odometry in; one fused ``state`` out."""
+"""Pose (external, or from the bridge's own lidar particle filter), IMU and wheel odometry
+in; one fused, latency-compensated ``state`` out.
+
+What tools (the bench, benchmarks, tests) use (``__all__``): the EKF over a measurement
+history (``FusedEstimator`` -> ``Estimate``, ``Verdict``), the lidar pose source
+(``LidarPoseSource``, ``start_pose``, ``ScanPose``), the scan checks (``scan_problem``,
+``ScanLayout``) and the particle filter (``ParticleFilter``, ``PfEstimate``).
+"""
+
+from services.localization_bridge.estimator import Estimate, FusedEstimator, Verdict
+from services.localization_bridge.lidar_pose import LidarPoseSource, ScanPose, start_pose
+from services.localization_bridge.particle_filter import ParticleFilter, PfEstimate
+from services.localization_bridge.scan_check import ScanLayout, scan_problem
+
+__all__ = [
+    "Estimate",
+    "FusedEstimator",
+    "LidarPoseSource",
+    "ParticleFilter",
+    "PfEstimate",
+    "ScanLayout",
+    "ScanPose",
+    "Verdict",
+    "scan_problem",
+    "start_pose",
+]

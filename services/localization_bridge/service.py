@@ -1,66 +1,239 @@
-"""The localization bridge service: ``vehicle/pose``, ``vehicle/imu``, ``vehicle/odom`` in,
-``state`` out (one State per pose, published as soon as the pose arrives, by a worker
-thread blocked on the pose channel). Tuning: ``[localization]``.
+"""The localization bridge service: pose (or lidar scan), IMU and odometry in; state out.
 
-A State of its own that fails validation is not sent: it is counted in ``bus.faults`` and
-reported on ``events/log`` (the service base's ``DropReporter``), and the next pose is
-relayed as usual."""
+``vehicle/pose`` (or ``vehicle/scan`` with its own lidar particle filter), ``vehicle/imu``,
+``vehicle/odom`` in; ``state`` out at a fixed rate (``[localization] publish_rate_hz``,
+100 Hz). Tuning: ``[localization]``.
+
+Threads: odometry and IMU update the core on Zenoh's threads; a worker blocks on the pose
+channel (``pose_source = "external"``) or the scan channel (``"lidar"``: scan -> particle
+filter -> its pose and covariance into the EKF); a second worker publishes the estimate
+predicted to the wall clock every period. One lock guards the core. The ``State``:
+
+- ``source_stamp_s`` is the stamp of the newest pose the filter applied, so its age
+  (``stamp_s - source_stamp_s``) is the age of the newest pose used and the planner's
+  staleness check keeps judging the localisation, not the IMU;
+- nothing is published before the first pose; ``valid`` is False once the newest pose is
+  older than ``invalid_after_s`` (the planner brakes); degraded (older than
+  ``degraded_after_s``) and the filter's rejections (future / stale stamps, gated poses,
+  dropped scans) are said on ``events/log`` (rate-limited, with counts).
+
+With ``filter = "passthrough"`` the newest pose is predicted to now by the old unicycle
+(``fusion.StateAssembler``), at the same fixed rate. A State of its own that fails
+validation is not sent: it is counted in ``bus.faults`` and reported on ``events/log``."""
 
 from __future__ import annotations
 
 import argparse
+import math
 import threading
+from collections import Counter
 
+from services.localization_bridge.estimator import Estimate, FusedEstimator
 from services.localization_bridge.fusion import StateAssembler
+from services.localization_bridge.lidar_pose import LidarPoseSource, start_pose
 from shared.bus import Bus
 from shared.config import RacestackConfig
 from shared.config.localization import LocalizationSettings
-from shared.keys import EVENTS_LOG, IMU, ODOM, POSE, STATE
-from shared.messages import Imu, LogEvent, Odom, Pose, State
+from shared.keys import EVENTS_LOG, IMU, ODOM, POSE, SCAN, STATE
+from shared.messages import Imu, LogEvent, LogLevelName, Odom, Pose, Scan, State
+from shared.messages.records import MAX_POS_M, MAX_SPEED_MPS, MAX_STEER_RAD, MAX_YAW_RATE_RADPS
 from shared.service import Service, publishes, subscribes
+from shared.track import Track, load_track, occupancy_for
+
+
+def state_record(est: Estimate, stamp_s: float) -> State:
+    """The ``state`` record of an estimate, clipped into the contract's limits."""
+
+    def clip(v: float, lim: float) -> float:
+        return min(max(v, -lim), lim)
+
+    return State(
+        stamp_s=stamp_s,
+        x_m=clip(est.x_m, MAX_POS_M),
+        y_m=clip(est.y_m, MAX_POS_M),
+        yaw_rad=est.yaw_rad,
+        speed_mps=clip(est.speed_mps, MAX_SPEED_MPS),
+        yaw_rate_radps=clip(est.yaw_rate_radps, MAX_YAW_RATE_RADPS),
+        steering_rad=clip(est.steering_rad, MAX_STEER_RAD),
+        source_stamp_s=est.pose_stamp_s if est.pose_stamp_s is not None else 0.0,
+        valid=est.valid,
+    )
 
 
 class BridgeService(Service):
-    """A worker turns each pose into a state at once; IMU and odometry only update the core
-    (on Zenoh's threads); the main thread is the base's watchdog (reports)."""
+    """Inputs into the core on arrival; ``state`` at a fixed rate (module docstring)."""
 
     NAME = "localization_bridge"
     PORTS = (
         subscribes(POSE, Pose),
+        subscribes(SCAN, Scan),  # only with pose_source = "lidar"
         subscribes(ODOM, Odom),
         subscribes(IMU, Imu),
         publishes(STATE, State),
         publishes(EVENTS_LOG, LogEvent),
     )
 
-    def __init__(self, bus: Bus, settings: LocalizationSettings) -> None:
+    def __init__(
+        self, bus: Bus, settings: LocalizationSettings, track: Track | None = None
+    ) -> None:
         super().__init__(bus, period_s=settings.check_period_s)
-        self.core = StateAssembler.from_settings(settings)
+        self.settings = settings
+        self.core = FusedEstimator(settings)
+        self.passthrough = StateAssembler.from_settings(settings)
+        self.newest_pose: Pose | None = None
+        self.lidar: LidarPoseSource | None = None
+        self._lock = threading.Lock()
         self.state_pub = self.publisher(STATE)
-        self.poses = self.subscribe_channel(POSE, capacity=settings.pose_queue)
-        self.subscribe(ODOM, self.core.on_odom)
-        self.subscribe(IMU, self.core.on_imu)
+        self.published = 0
+        self._said: Counter[str] = Counter()
+        self._quality = "none"
+        if settings.pose_source == "lidar":
+            if track is None:
+                raise ValueError("pose_source = 'lidar' needs the track (its occupancy map)")
+            start = start_pose(track, settings) if settings.init == "start" else None
+            self.lidar = LidarPoseSource(occupancy_for(track), settings, start)
+            self.inputs = self.subscribe_channel(SCAN, capacity=1)
+        else:
+            self.inputs = self.subscribe_channel(POSE, capacity=settings.pose_queue)
+        self.subscribe(ODOM, self.on_odom)
+        self.subscribe(IMU, self.on_imu)
 
     @classmethod
     def create(cls, cfg: RacestackConfig, args: argparse.Namespace, bus: Bus) -> BridgeService:
-        """The bridge with the ``[localization]`` settings."""
-        return cls(bus, cfg.localization)
+        """The bridge with the ``[localization]`` settings (and the track for the lidar)."""
+        loc = cfg.localization
+        track = load_track(cfg.track.source) if loc.pose_source == "lidar" else None
+        return cls(bus, loc, track)
 
-    def relay(self) -> None:
-        """The worker loop: one State per pose, until the bus closes."""
+    # -- inputs --------------------------------------------------------------------------
+    def on_odom(self, msg: Odom) -> None:
+        """Wheel odometry into the filter (and the lidar's motion model)."""
+        now = self.wall_clock()
+        with self._lock:
+            self.passthrough.on_odom(msg)
+            self.core.odom(msg.stamp_s, msg.speed_mps, msg.steering_rad, msg.yaw_rate_radps, now)
+            if self.lidar is not None:
+                self.lidar.odom(msg.speed_mps, msg.yaw_rate_radps)
+
+    def on_imu(self, msg: Imu) -> None:
+        """A gyro sample into the filter (and the lidar's motion model)."""
+        now = self.wall_clock()
+        with self._lock:
+            self.passthrough.on_imu(msg)
+            self.core.imu(msg.stamp_s, msg.yaw_rate_radps, now)
+            if self.lidar is not None:
+                self.lidar.imu(msg.yaw_rate_radps)
+
+    def on_pose(self, pose: Pose) -> None:
+        """An external pose into the filter."""
+        now = self.wall_clock()
+        with self._lock:
+            self.newest_pose = pose
+            self.core.pose(pose.stamp_s, pose.x_m, pose.y_m, pose.yaw_rad, pose.cov, now)
+
+    def on_scan(self, scan: Scan) -> None:
+        """A scan through the particle filter; its pose into the EKF."""
+        assert self.lidar is not None
+        with self._lock:
+            bias = self.core.estimate(self.wall_clock()).bias_radps
+            motion = self.lidar.motion()
+        got = self.lidar.scan(scan, bias, motion)  # the filter's update, outside the lock
+        if got is None:
+            return
+        e = got.estimate
+        now = self.wall_clock()
+        with self._lock:
+            self.core.pose(got.t_s, e.x_m, e.y_m, e.yaw_rad, e.cov, now)
+
+    def receive(self) -> None:
+        """The input worker: every pose (or scan) as it arrives, until the bus closes."""
+        handle = self.on_scan if self.lidar is not None else self.on_pose
         first = True
-        state_key = self.state_pub.key
-        while (pose := self.poses.recv()) is not None:
-            with self.bus.faults.guard(state_key):  # counted and reported, never raised
-                self.state_pub.put(self.core.on_pose(pose, self.wall_clock()))
+        while (msg := self.inputs.recv()) is not None:
+            handle(msg)
             if first:
-                self.log.info("first pose received; publishing %s", state_key)
+                self.log.info("first input on %s", self.inputs.key)
                 first = False
 
+    # -- output --------------------------------------------------------------------------
+    def current_state(self) -> State:
+        """The state now (wall clock)."""
+        now = self.wall_clock()
+        with self._lock:
+            if self.settings.filter == "passthrough":
+                if self.newest_pose is None:
+                    return State(stamp_s=now, x_m=0.0, y_m=0.0, yaw_rad=0.0, speed_mps=0.0,
+                                 yaw_rate_radps=0.0, steering_rad=0.0, source_stamp_s=0.0,
+                                 valid=False)
+                return self.passthrough.on_pose(self.newest_pose, now)
+            est = self.core.estimate(now)
+        self._say_quality(est)
+        return state_record(est, now)
+
+    def started(self) -> bool:
+        """Whether a pose has arrived: before it nothing is published (the planner's own
+        watchdog brakes on the silence, as it always did)."""
+        with self._lock:
+            return self.core.initialised or self.newest_pose is not None
+
+    def publish_loop(self, stop: threading.Event) -> None:
+        """The output worker: one State every ``1 / publish_rate_hz`` until `stop`, from the
+        first pose on."""
+        period = 1.0 / self.settings.publish_rate_hz
+        key = self.state_pub.key
+        next_t = self.clock()
+        while not stop.is_set():
+            if self.started():
+                with self.bus.faults.guard(key):  # counted and reported, never raised
+                    self.state_pub.put(self.current_state())
+                    self.published += 1
+            next_t += period
+            wait = next_t - self.clock()
+            if wait < -period:  # far behind (a stalled machine): realign, no burst
+                next_t, wait = self.clock(), 0.0
+            if wait > 0.0 and stop.wait(wait):
+                break
+
+    def _say_quality(self, est: Estimate) -> None:
+        q = "invalid" if not est.valid else "degraded" if est.degraded else "ok"
+        if q == self._quality:
+            return
+        before, self._quality = self._quality, q
+        age = f"{est.pose_age_s * 1e3:.0f} ms" if math.isfinite(est.pose_age_s) else "none"
+        if q == "ok":
+            if before != "none":
+                self.say(LogLevelName.INFO, "localisation ok again", limit="quality")
+        else:
+            level = LogLevelName.ERROR if q == "invalid" else LogLevelName.WARNING
+            self.say(level, f"localisation {q} (newest pose {age} old)", limit="quality")
+
+    def counts(self) -> Counter[str]:
+        """Every rejection so far (the filter's and the lidar's), by reason."""
+        with self._lock:
+            out = Counter(self.core.counts)
+            if self.lidar is not None:
+                out.update(self.lidar.counts)
+        return out
+
+    def tick(self) -> None:
+        """The watchdog: say the rejections that grew since the last line."""
+        ok = {"pose_applied", "pose_initialised", "scans_used"}
+        now = self.counts()
+        grown = {k: v - self._said[k] for k, v in now.items() if k not in ok and v > self._said[k]}
+        if grown and self.say(
+            LogLevelName.WARNING,
+            "rejected inputs: " + ", ".join(f"{k} {v}" for k, v in sorted(grown.items())),
+            limit="rejections",
+        ):
+            self._said = now
+
     def serve(self, stop: threading.Event) -> int:
-        """Start the relay worker, then watch until `stop`."""
-        self.start_worker("bridge-poses", self.relay, stop, fault_key=self.state_pub.key)
-        self.log.info("ready; waiting for %s", self.poses.key)
+        """Start the input and output workers, then watch until `stop`."""
+        key = self.state_pub.key
+        self.start_worker("bridge-inputs", self.receive, stop, fault_key=key)
+        self.start_worker("bridge-state", lambda: self.publish_loop(stop), stop, fault_key=key)
+        self.log.info("ready (%s pose); waiting for %s", self.settings.pose_source,
+                      self.inputs.key)
         return super().serve(stop)
 
 

@@ -1,28 +1,136 @@
-"""Settings of the localization bridge (``[localization]``): how it turns pose, odometry and
-IMU into the ``state`` the planner starts from (``services/localization_bridge``)."""
+"""Settings of the localization bridge (``[localization]``): how it turns pose (external or
+from its own lidar particle filter), odometry and IMU into the ``state`` the planner starts
+from (``services/localization_bridge``: ``ekf.py``, ``estimator.py``, ``service.py``)."""
 
 from __future__ import annotations
 
-from pydantic import Field
+from typing import Literal
+
+from pydantic import Field, model_validator
 
 from shared.config.base import Section
+from shared.config.particle_filter import ParticleFilterSettings
+
+
+class EkfNoise(Section):
+    """Noise of the EKF (``[localization.noise]``): process noise as white-noise spectral
+    densities (the variance added per second of prediction), measurement noise as standard
+    deviations.
+
+    Attributes:
+        accel_psd: longitudinal acceleration noise q_a: var(v) grows q_a dt [m^2/s^3].
+        yaw_accel_psd: yaw acceleration noise q_r: var(r) grows q_r dt [rad^2/s^3].
+        position_psd: unmodelled lateral motion (slip): var(x), var(y) grow q_p dt [m^2/s].
+        yaw_psd: unmodelled yaw motion: var(yaw) grows q_yaw dt [rad^2/s].
+        bias_psd: gyro bias random walk q_b: var(b) grows q_b dt [rad^2/s^3].
+        lateral_accel_psd: rear-axle lateral velocity (slip) random walk q_vy: var(vy) grows
+            q_vy dt [m^2/s^3].
+        pose_position_std_m: pose position std when ``Pose.cov`` is None [m].
+        pose_yaw_std_rad: pose yaw std when ``Pose.cov`` is None [rad].
+        speed_std_mps: wheel-odometry speed std [m/s].
+        gyro_std_radps: IMU yaw-rate std [rad/s].
+        odom_yaw_rate_std_radps: odometry yaw-rate std (when the source gives one) [rad/s].
+        init_position_std_m, init_yaw_std_rad, init_speed_std_mps, init_yaw_rate_std_radps,
+        init_bias_std_radps, init_lateral_std_mps: the covariance a (re-)initialisation starts from.
+        min_pose_std_m, min_pose_yaw_std_rad: floor on a pose's own covariance (a localiser
+            claiming millimetres must not freeze the filter) [m], [rad].
+    """
+
+    accel_psd: float = Field(4.0, gt=0.0, le=1e4, allow_inf_nan=False)
+    yaw_accel_psd: float = Field(9.0, gt=0.0, le=1e4, allow_inf_nan=False)
+    position_psd: float = Field(1e-4, ge=0.0, le=10.0, allow_inf_nan=False)
+    yaw_psd: float = Field(1e-4, ge=0.0, le=10.0, allow_inf_nan=False)
+    bias_psd: float = Field(1e-6, ge=0.0, le=1.0, allow_inf_nan=False)
+    lateral_accel_psd: float = Field(1.0, gt=0.0, le=1e4, allow_inf_nan=False)
+    pose_position_std_m: float = Field(0.02, gt=0.0, le=10.0, allow_inf_nan=False)
+    pose_yaw_std_rad: float = Field(0.035, gt=0.0, le=3.2, allow_inf_nan=False)
+    speed_std_mps: float = Field(0.05, gt=0.0, le=10.0, allow_inf_nan=False)
+    gyro_std_radps: float = Field(0.02, gt=0.0, le=10.0, allow_inf_nan=False)
+    odom_yaw_rate_std_radps: float = Field(0.1, gt=0.0, le=10.0, allow_inf_nan=False)
+    init_position_std_m: float = Field(0.05, gt=0.0, le=100.0, allow_inf_nan=False)
+    init_yaw_std_rad: float = Field(0.05, gt=0.0, le=3.2, allow_inf_nan=False)
+    init_speed_std_mps: float = Field(0.5, gt=0.0, le=50.0, allow_inf_nan=False)
+    init_yaw_rate_std_radps: float = Field(0.5, gt=0.0, le=50.0, allow_inf_nan=False)
+    init_bias_std_radps: float = Field(0.02, gt=0.0, le=1.0, allow_inf_nan=False)
+    init_lateral_std_mps: float = Field(0.2, gt=0.0, le=50.0, allow_inf_nan=False)
+    min_pose_std_m: float = Field(0.002, gt=0.0, le=1.0, allow_inf_nan=False)
+    min_pose_yaw_std_rad: float = Field(0.002, gt=0.0, le=1.0, allow_inf_nan=False)
 
 
 class LocalizationSettings(Section):
-    """The bridge's tuning; the defaults are the values it always had.
+    """The bridge's tuning (``[localization]``, nested ``[localization.noise]`` and
+    ``[localization.particle_filter]``).
 
     Attributes:
-        max_input_age_s: odometry or IMU older than this against the pose's stamp is not
-            used (speed, steering and yaw rate then count as 0) [s].
-        max_prediction_s: longest forward prediction of a pose to the bridge's clock
-            (latency compensation; 0 disables it) [s].
-        pose_queue: poses kept waiting for the worker; 1 = only the newest (older ones
-            are dropped and show up as sequence gaps) [messages].
+        filter: "ekf" (default: the fused, latency-compensated filter of ``ekf.py``) or
+            "passthrough" (the newest pose predicted to now by a unicycle, ``fusion.py``:
+            the bridge before issue 13).
+        pose_source: "external" (``vehicle/pose`` from a localiser or the simulator) or
+            "lidar" (the bridge's own particle filter on ``vehicle/scan`` and the track's
+            occupancy map).
+        init: lidar: "start" (the filter starts at `initial_pose`, default the track's start
+            pose) or "global" (particles over the free space).
+        initial_pose: lidar, init = "start": [x m, y m, yaw rad] of the rear axle; None: the
+            track's centreline at arc length `start_s_m`, heading along it.
+        start_s_m: where the car starts, as arc length from the start line [m] (default: the
+            simulator's start, its CoG 0.3 m behind the line and the rear axle lr = 0.17 m
+            further back).
+        publish_rate_hz: rate of ``state`` [Hz].
+        history_s: measurements are kept this long for re-propagation; older stamps are
+            rejected as stale [s].
+        future_tolerance_s: stamps at most this far ahead of the bridge's clock are taken
+            (clock skew); further ones are rejected as future [s].
+        degraded_after_s: newest applied pose older than this: the estimate is degraded
+            (said on ``events/log``, still valid) [s].
+        invalid_after_s: ... older than this: ``valid = False`` (the planner brakes); the
+            next pose re-initialises the filter [s].
+        gate_chi2: Mahalanobis gate on the pose innovation (3 degrees of freedom; 16.27 is
+            the 99.9 % quantile): a pose beyond it is counted, not applied.
+        reinit_after_gated: this many consecutive gated poses that agree with each other
+            (each within `reinit_agree_m` / `reinit_agree_rad` of the previous gated one)
+            re-initialise the filter at the newest: the car really is elsewhere.
+        reinit_agree_m, reinit_agree_rad: see `reinit_after_gated` [m], [rad].
+        latency_compensation: True: measurements are applied at their stamps and the state
+            re-propagated to now; False: each is applied at its arrival (benchmark only).
+        max_input_age_s: passthrough: odometry / IMU older than this against the pose is not
+            used; ekf: speed and yaw rate inputs older than this against now are not
+            trusted beyond the process noise (no effect on the maths) [s].
+        max_prediction_s: longest prediction from the newest measurement to now [s].
+        pose_queue: poses kept waiting for the worker; 1 = only the newest [messages].
         check_period_s: period of the main thread's watchdog: drop and fault reports on
             ``events/log`` [s].
+        noise: the EKF's noise (``EkfNoise``).
+        particle_filter: the lidar particle filter (``ParticleFilterSettings``).
     """
 
+    filter: Literal["ekf", "passthrough"] = "ekf"
+    pose_source: Literal["external", "lidar"] = "external"
+    init: Literal["start", "global"] = "start"
+    initial_pose: tuple[float, float, float] | None = None
+    start_s_m: float = Field(-0.47, ge=-1e4, le=1e4, allow_inf_nan=False)
+    publish_rate_hz: float = Field(100.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    history_s: float = Field(0.5, gt=0.0, le=10.0, allow_inf_nan=False)
+    future_tolerance_s: float = Field(0.05, ge=0.0, le=10.0, allow_inf_nan=False)
+    degraded_after_s: float = Field(0.1, gt=0.0, le=60.0, allow_inf_nan=False)
+    invalid_after_s: float = Field(0.25, gt=0.0, le=60.0, allow_inf_nan=False)
+    gate_chi2: float = Field(16.27, gt=0.0, le=1e6, allow_inf_nan=False)
+    reinit_after_gated: int = Field(10, ge=1, le=10_000)
+    reinit_agree_m: float = Field(0.3, gt=0.0, le=100.0, allow_inf_nan=False)
+    reinit_agree_rad: float = Field(0.3, gt=0.0, le=3.2, allow_inf_nan=False)
+    latency_compensation: bool = True
     max_input_age_s: float = Field(0.25, gt=0.0, le=10.0, allow_inf_nan=False)
     max_prediction_s: float = Field(0.1, ge=0.0, le=1.0, allow_inf_nan=False)
     pose_queue: int = Field(1, ge=1, le=1000)
     check_period_s: float = Field(0.2, gt=0.0, le=10.0, allow_inf_nan=False)
+    noise: EkfNoise = EkfNoise()
+    particle_filter: ParticleFilterSettings = ParticleFilterSettings()
+
+    @model_validator(mode="after")
+    def _times_in_order(self) -> LocalizationSettings:
+        if not self.degraded_after_s < self.invalid_after_s:
+            raise ValueError("degraded_after_s must be below invalid_after_s")
+        if self.initial_pose is not None and not all(
+            abs(v) < 1e4 for v in self.initial_pose
+        ):
+            raise ValueError("initial_pose must be finite, |value| < 1e4")
+        return self

@@ -131,3 +131,16 @@ def rasterize_track(track, resolution_m: float = 0.05, margin_m: float = 1.0) ->
         origin_xy_m=lo,
         source=f"{track.source} (rasterised)",
     )
+
+
+def occupancy_for(track) -> OccupancyGrid:
+    """The track's ROS map if its folder has one (the first ``*.yaml``), else a grid rasterised
+    from its boundaries at 5 cm: the one grid the simulator's lidar and the bridge's
+    particle filter share. `track` is a shared.track.Track."""
+    src = Path(track.source)
+    folder = src if src.is_dir() else src.parent
+    if src.exists():
+        maps = sorted(folder.glob("*.yaml"))
+        if maps:
+            return load_ros_map(maps[0])
+    return rasterize_track(track, resolution_m=0.05)

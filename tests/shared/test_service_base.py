@@ -4,6 +4,7 @@ limits, drop and fault reports, the watchdog, injectable clocks, the hosted life
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 
@@ -12,7 +13,7 @@ from shared.bus import Bus
 from shared.config.bus import BusSettings
 from shared.config.localization import LocalizationSettings
 from shared.fake_bus import FakeBus
-from shared.keys import DRIVE_CMD, EVENTS_LOG, ODOM, POSE, STATE
+from shared.keys import DRIVE_CMD, EVENTS_LOG, IMU, ODOM, POSE, STATE
 from shared.messages import DriveCmd, LogEvent, Odom, Pose, State
 from shared.net import free_loopback_port
 from shared.service import Direction, Port, Service, contract_rows, publishes, subscribes
@@ -147,24 +148,19 @@ def test_contract_rows_gather_the_declarations() -> None:
     assert rows[POSE].msg_type is Pose
 
 
-def test_the_bridge_relays_each_pose_with_its_localization_settings() -> None:
+def test_the_bridge_takes_its_localization_settings_and_declares_its_inputs() -> None:
+    """The bridge publishes at a fixed rate (tests/localization/test_bridge.py); here only
+    that the service base hosts it with the [localization] settings and its ports."""
     bus = FakeBus()
-    settings = LocalizationSettings(max_prediction_s=0.0, max_input_age_s=0.5)
+    settings = LocalizationSettings(filter="passthrough", max_prediction_s=0.0)
     svc = BridgeService(bus, settings)  # type: ignore[arg-type]
-    assert svc.core.max_prediction_s == 0.0 and svc.core.max_input_age_s == 0.5
-    stop = threading.Event()
-    worker = svc.start_worker("relay", svc.relay, stop, fault_key=bus.keys.state)
-    bus.deliver(bus.keys.odom, Odom(stamp_s=10.0, speed_mps=2.0, steering_rad=0.1))
-    bus.deliver(bus.keys.pose, Pose(stamp_s=10.2, x_m=1.0, y_m=2.0, yaw_rad=0.3))
-    bus.deliver(bus.keys.pose, Pose(stamp_s=10.6, x_m=1.1, y_m=2.0, yaw_rad=0.3))
-    bus.close()  # ends the relay's recv
-    assert worker.join(5.0)
-    states = bus.sent(bus.keys.state, State)
-    assert [s.x_m for s in states] == [1.0, 1.1]  # no prediction
-    assert states[0].speed_mps == 2.0  # odometry 0.2 s old: used
-    assert states[1].speed_mps == 0.0  # 0.6 s old: stale
-    assert not stop.is_set()
-    assert ODOM in {p.suffix for p in BridgeService.PORTS}
+    assert svc.settings is settings
+    assert not svc.current_state().valid  # nothing before the first pose
+    svc.on_odom(Odom(stamp_s=time.time(), speed_mps=2.0, steering_rad=0.1))
+    svc.on_pose(Pose(stamp_s=time.time(), x_m=1.0, y_m=2.0, yaw_rad=0.3))
+    st = svc.current_state()
+    assert st.valid and (st.x_m, st.speed_mps) == (1.0, 2.0)  # no prediction
+    assert {ODOM, POSE, IMU} <= {p.suffix for p in BridgeService.PORTS}
 
 
 def test_hosted_on_zenoh_it_announces_after_subscribing_and_closes_after_the_bus() -> None:

@@ -1,0 +1,128 @@
+"""Localisation in the bench's loop: the simulator's sensor models through the bridge's own
+filter code, in the same process (``racestack bench --estimator truth|ekf|lidar``).
+
+- ``truth``: the planner sees the true rear-axle pose (no object here; the bench as before);
+- ``ekf``: the simulator's pose sensor (``[simulator.pose]``: rate, latency, noise), IMU and
+  wheel odometry into ``FusedEstimator``; the planner sees the estimate at its tick;
+- ``lidar``: the simulator's lidar (``[simulator.lidar]``) into the particle filter
+  (``LidarPoseSource``), its pose with its covariance into the EKF with the IMU and odometry.
+
+Both start from the car's known start pose (the bench's start, ``init = "start"``). Every
+planner tick compares the estimate with the truth: ``errors()`` gives the RMS position [m]
+and yaw [rad] errors, the largest position error and the filter's counts.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+
+from services.localization_bridge import FusedEstimator, LidarPoseSource
+from services.simulator import SensorSuite, StepResult
+from shared.config.localization import LocalizationSettings
+from shared.config.simulator import SimulatorSettings
+from shared.messages import Scan
+from shared.track import Track, occupancy_for
+
+#: The estimators of ``--estimator``.
+ESTIMATORS = ("truth", "ekf", "lidar")
+
+
+class InLoopEstimator:
+    """Sensors of `sim_settings` -> the bridge's filter (module docstring).
+
+    Args:
+        kind: "ekf" or "lidar".
+        track: the track (its occupancy map for the lidar).
+        sim_settings: the simulator's sensors and seed.
+        settings: ``[localization]``.
+        start: the true rear-axle start pose (x [m], y [m], yaw [rad]) at time `t0_s` [s].
+    """
+
+    def __init__(
+        self,
+        kind: str,
+        track: Track,
+        sim_settings: SimulatorSettings,
+        settings: LocalizationSettings,
+        start: tuple[float, float, float],
+        t0_s: float = 0.0,
+    ) -> None:
+        if kind not in ("ekf", "lidar"):
+            raise ValueError(f"estimator must be 'ekf' or 'lidar', got {kind!r}")
+        self.kind = kind
+        grid = occupancy_for(track) if kind == "lidar" else None
+        self.sensors = SensorSuite(sim_settings, grid)
+        self.filter = FusedEstimator(settings)
+        self.lidar = (
+            LidarPoseSource(grid, settings, start, seed=sim_settings.seed)
+            if grid is not None
+            else None
+        )
+        self.filter.pose(t0_s, *start, None, t0_s)  # the known start pose
+        self._err_xy: list[float] = []
+        self._err_yaw: list[float] = []
+        self.invalid_ticks = 0
+
+    def feed(self, out: StepResult) -> None:
+        """One simulation step's truth through the sensors into the filter."""
+        now = out.t_s
+        got = self.sensors.update(out)
+        f = self.filter
+        for m in got.imu:
+            f.imu(m.stamp_s, m.yaw_rate_radps, now)
+            if self.lidar is not None:
+                self.lidar.imu(m.yaw_rate_radps)
+        for o in got.odometry:
+            f.odom(o.stamp_s, o.speed_mps, o.steering_rad, None, now)
+            if self.lidar is not None:
+                self.lidar.odom(o.speed_mps)
+        if self.lidar is None:
+            for p in got.pose:
+                f.pose(p.stamp_s, p.x_m, p.y_m, p.yaw_rad, None, now)
+            return
+        for s in got.scans:
+            scan = Scan(
+                stamp_s=s.stamp_s,
+                angle_min_rad=s.angle_min_rad,
+                angle_increment_rad=s.angle_increment_rad,
+                ranges_m=s.ranges_m,
+            )
+            bias = f.estimate(now).bias_radps
+            sp = self.lidar.scan(scan, bias)
+            if sp is not None:
+                e = sp.estimate
+                f.pose(sp.t_s, e.x_m, e.y_m, e.yaw_rad, e.cov, now)
+
+    def pose(self, now_s: float, truth: tuple[float, float, float]) -> tuple[float, float, float]:
+        """The estimate at `now_s` [s] the planner sees; `truth` (rear axle) is recorded
+        against it."""
+        e = self.filter.estimate(now_s)
+        self.invalid_ticks += not e.valid
+        self._err_xy.append(math.hypot(e.x_m - truth[0], e.y_m - truth[1]))
+        self._err_yaw.append(math.remainder(e.yaw_rad - truth[2], 2.0 * math.pi))
+        return e.x_m, e.y_m, e.yaw_rad
+
+    def counts(self) -> Counter[str]:
+        """The filter's and the lidar's counts."""
+        out = Counter(self.filter.counts)
+        if self.lidar is not None:
+            out.update(self.lidar.counts)
+        return out
+
+    def errors(self) -> dict:
+        """RMS position [m] and yaw [deg] error, max position error [m], invalid ticks and
+        the counts (results.json's ``localisation``)."""
+        xy, yaw = np.asarray(self._err_xy), np.asarray(self._err_yaw)
+        n = xy.size
+        return {
+            "estimator": self.kind,
+            "ticks": int(n),
+            "rms_position_m": float(np.sqrt(np.mean(xy**2))) if n else None,
+            "max_position_m": float(xy.max()) if n else None,
+            "rms_yaw_deg": float(np.degrees(np.sqrt(np.mean(yaw**2)))) if n else None,
+            "invalid_ticks": self.invalid_ticks,
+            "counts": dict(self.counts()),
+        }

@@ -1,0 +1,221 @@
+"""The extended Kalman filter of the bridge: a planar car, maths only (no I/O, no clock).
+
+State ``s`` (7,), indexed by ``Ekf`` (rear axle, map frame)::
+
+    s = [x m, y m, yaw rad, v m/s, r rad/s, b rad/s, vy m/s]
+
+``v`` is the longitudinal speed, ``r`` the yaw rate, ``b`` the gyro's yaw-rate bias, ``vy``
+the rear axle's lateral velocity (body frame, left +). ``vy`` earns its place because a
+racing car's rear axle slides: in a turn at 3 m/s it moves 1-3 degrees off its heading, a
+unicycle model then pulls the yaw towards the velocity (``benchmarks/localization_ekf.py``,
+a raceline race on map416 with 2 cm / 2 degree poses at 30 Hz, 30 ms late: position RMS
+2.4 cm and yaw 0.4 degrees with ``vy``; 9.3 cm and 1.9 degrees without it, 4.0 cm and 0.5
+degrees without it and the position noise ``position_psd`` raised 100-fold for the slide).
+The bias earns its place because the IMU is what carries the yaw between poses (and
+through a pose drop-out): a MEMS gyro's bias of 0.01-0.03 rad/s turns into 0.3-1 degree of
+heading error in 0.5 s, and the pose stream makes it observable (``z_imu = r + b`` against
+the yaw the poses show). Speed, yaw rate and ``vy`` are random walks driven by the odometry
+and IMU updates (and the poses), so no input model of the car is needed.
+
+Prediction over ``dt`` (midpoint heading, exact for a constant yaw rate to second order)::
+
+    yaw_m = yaw + r dt / 2
+    x += (v cos(yaw_m) - vy sin(yaw_m)) dt,   y += (v sin(yaw_m) + vy cos(yaw_m)) dt,
+    yaw += r dt,   v, r, b, vy unchanged
+    P = F P F^T + Q(dt)
+
+with ``F`` the Jacobian and ``Q`` white acceleration noise: q_a on v along the heading
+(``[[dt^3/3, dt^2/2], [dt^2/2, dt]] q_a`` for (position along the heading, v)), q_r the same
+for (yaw, r), plus q_p dt on x, y, q_yaw dt on yaw, q_b dt on b and q_vy dt on vy
+(``shared.config.localization.EkfNoise``).
+
+Measurements ``z = H s + noise(R)`` with the Joseph-form update
+``K = P H^T S^-1``, ``S = H P H^T + R``, ``P = (I - K H) P (I - K H)^T + K R K^T``:
+
+- pose [x, y, yaw] (H selects X, Y, YAW; the yaw innovation wrapped into [-pi, pi]);
+  its squared Mahalanobis distance ``d2 = nu^T S^-1 nu`` is what the gate tests;
+- wheel speed v; odometry yaw rate r; IMU yaw rate ``r + b``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from shared.config.localization import EkfNoise
+
+TWO_PI = 2.0 * math.pi
+
+
+class Ekf(IntEnum):
+    """Index of the EKF state vector and covariance."""
+
+    X = 0
+    Y = 1
+    YAW = 2
+    V = 3
+    R = 4
+    BIAS = 5
+    VY = 6
+
+
+#: State dimension.
+N = len(Ekf)
+_POSE_ROWS = (Ekf.X, Ekf.Y, Ekf.YAW)
+_H_POSE = np.zeros((3, N))
+_H_POSE[0, Ekf.X] = _H_POSE[1, Ekf.Y] = _H_POSE[2, Ekf.YAW] = 1.0
+_H_SPEED = np.zeros((1, N))
+_H_SPEED[0, Ekf.V] = 1.0
+_H_YAW_RATE = np.zeros((1, N))
+_H_YAW_RATE[0, Ekf.R] = 1.0
+_H_GYRO = np.zeros((1, N))
+_H_GYRO[0, Ekf.R] = _H_GYRO[0, Ekf.BIAS] = 1.0
+_EYE = np.eye(N)
+
+
+def wrap(angle_rad: float) -> float:
+    """`angle_rad` wrapped into [-pi, pi]."""
+    return math.remainder(angle_rad, TWO_PI)
+
+
+@dataclass(frozen=True, slots=True)
+class Belief:
+    """Mean (7,) and covariance (7, 7) of the state (index with ``Ekf``), at `t_s` [s]."""
+
+    t_s: float
+    s: np.ndarray
+    P: np.ndarray
+
+
+def initial_belief(
+    t_s: float,
+    x_m: float,
+    y_m: float,
+    yaw_rad: float,
+    noise: EkfNoise,
+    speed_mps: float = 0.0,
+    yaw_rate_radps: float = 0.0,
+    bias_radps: float = 0.0,
+    pose_cov: np.ndarray | None = None,
+) -> Belief:
+    """A belief at a pose: covariance from `noise`'s init_* stds (the pose's own 3x3
+    `pose_cov`, if given, for x, y, yaw)."""
+    s = np.array(
+        [x_m, y_m, wrap(yaw_rad), speed_mps, yaw_rate_radps, bias_radps, 0.0], dtype=float
+    )
+    P = np.diag(
+        [
+            noise.init_position_std_m**2,
+            noise.init_position_std_m**2,
+            noise.init_yaw_std_rad**2,
+            noise.init_speed_std_mps**2,
+            noise.init_yaw_rate_std_radps**2,
+            noise.init_bias_std_radps**2,
+            noise.init_lateral_std_mps**2,
+        ]
+    )
+    if pose_cov is not None:
+        P[np.ix_(_POSE_ROWS, _POSE_ROWS)] = np.maximum(pose_cov, pose_cov.T)
+    return Belief(t_s, s, P)
+
+
+def predict(b: Belief, t_s: float, noise: EkfNoise) -> Belief:
+    """The belief moved to `t_s` [s] by the motion model (module docstring); a `t_s` at or
+    before ``b.t_s`` returns `b` unchanged."""
+    dt = t_s - b.t_s
+    if not dt > 0.0:
+        return b
+    x, y, yaw, v, r, bias, vy = b.s
+    yaw_m = yaw + 0.5 * r * dt
+    c, s_ = math.cos(yaw_m), math.sin(yaw_m)
+    dx = (v * c - vy * s_) * dt
+    dy = (v * s_ + vy * c) * dt
+    s = np.array([x + dx, y + dy, wrap(yaw + r * dt), v, r, bias, vy])
+    F = _EYE.copy()
+    F[Ekf.X, Ekf.YAW] = -dy
+    F[Ekf.X, Ekf.V] = c * dt
+    F[Ekf.X, Ekf.VY] = -s_ * dt
+    F[Ekf.X, Ekf.R] = -0.5 * dy * dt
+    F[Ekf.Y, Ekf.YAW] = dx
+    F[Ekf.Y, Ekf.V] = s_ * dt
+    F[Ekf.Y, Ekf.VY] = c * dt
+    F[Ekf.Y, Ekf.R] = 0.5 * dx * dt
+    F[Ekf.YAW, Ekf.R] = dt
+    Q = np.zeros((N, N))
+    qa, qr = noise.accel_psd, noise.yaw_accel_psd
+    h = np.array([c, s_])
+    Q[:2, :2] = np.outer(h, h) * (qa * dt**3 / 3.0) + np.eye(2) * (noise.position_psd * dt)
+    Q[:2, Ekf.V] = Q[Ekf.V, :2] = h * (qa * dt * dt / 2.0)
+    Q[Ekf.V, Ekf.V] = qa * dt
+    Q[Ekf.YAW, Ekf.YAW] = qr * dt**3 / 3.0 + noise.yaw_psd * dt
+    Q[Ekf.YAW, Ekf.R] = Q[Ekf.R, Ekf.YAW] = qr * dt * dt / 2.0
+    Q[Ekf.R, Ekf.R] = qr * dt
+    Q[Ekf.BIAS, Ekf.BIAS] = noise.bias_psd * dt
+    Q[Ekf.VY, Ekf.VY] = noise.lateral_accel_psd * dt
+    P = F @ b.P @ F.T + Q
+    return Belief(t_s, s, 0.5 * (P + P.T))
+
+
+def _update(b: Belief, H: np.ndarray, nu: np.ndarray, R: np.ndarray) -> Belief:
+    S = H @ b.P @ H.T + R
+    K = np.linalg.solve(S, H @ b.P).T  # P H^T S^-1 (S and P symmetric)
+    s = b.s + K @ nu
+    s[Ekf.YAW] = wrap(s[Ekf.YAW])
+    A = _EYE - K @ H
+    P = A @ b.P @ A.T + K @ R @ K.T
+    return Belief(b.t_s, s, 0.5 * (P + P.T))
+
+
+def pose_innovation(b: Belief, z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, float]:
+    """Innovation (3,) of a pose `z` = [x, y, yaw] with covariance `R` (3, 3), and its
+    squared Mahalanobis distance ``nu^T (H P H^T + R)^-1 nu``."""
+    nu = np.array([z[0] - b.s[Ekf.X], z[1] - b.s[Ekf.Y], wrap(z[2] - b.s[Ekf.YAW])])
+    S = b.P[np.ix_(_POSE_ROWS, _POSE_ROWS)] + R
+    return nu, float(nu @ np.linalg.solve(S, nu))
+
+
+def update_pose(b: Belief, z: np.ndarray, R: np.ndarray) -> Belief:
+    """Correct `b` with a pose `z` = [x m, y m, yaw rad] of covariance `R` (3, 3)."""
+    nu, _ = pose_innovation(b, z, R)
+    return _update(b, _H_POSE, nu, R)
+
+
+def update_speed(b: Belief, speed_mps: float, std_mps: float) -> Belief:
+    """Correct `b` with a wheel speed [m/s] of std `std_mps`."""
+    nu = np.array([speed_mps - b.s[Ekf.V]])
+    return _update(b, _H_SPEED, nu, np.array([[std_mps**2]]))
+
+
+def update_yaw_rate(b: Belief, yaw_rate_radps: float, std_radps: float) -> Belief:
+    """Correct `b` with an unbiased yaw rate (wheel odometry) [rad/s]."""
+    nu = np.array([yaw_rate_radps - b.s[Ekf.R]])
+    return _update(b, _H_YAW_RATE, nu, np.array([[std_radps**2]]))
+
+
+def update_gyro(b: Belief, yaw_rate_radps: float, std_radps: float) -> Belief:
+    """Correct `b` with a gyro yaw rate ``z = r + b`` [rad/s]."""
+    nu = np.array([yaw_rate_radps - b.s[Ekf.R] - b.s[Ekf.BIAS]])
+    return _update(b, _H_GYRO, nu, np.array([[std_radps**2]]))
+
+
+def pose_covariance(cov: np.ndarray | None, noise: EkfNoise) -> np.ndarray:
+    """The 3x3 covariance [x, y, yaw] a pose is applied with: its own (floored at
+    ``min_pose_std_m`` / ``min_pose_yaw_std_rad`` on the diagonal) or the settings'."""
+    if cov is None:
+        p, a = noise.pose_position_std_m**2, noise.pose_yaw_std_rad**2
+        return np.diag([p, p, a])
+    R = np.array(cov, dtype=float)
+    floor = np.array([noise.min_pose_std_m, noise.min_pose_std_m, noise.min_pose_yaw_std_rad])
+    d = np.maximum(np.diag(R), floor**2)
+    R[np.diag_indices(3)] = d
+    # keep it positive definite: clip correlations to |rho| <= 0.99
+    sd = np.sqrt(d)
+    lim = 0.99 * np.outer(sd, sd)
+    R = np.clip(0.5 * (R + R.T), -lim, lim)
+    R[np.diag_indices(3)] = d
+    if np.linalg.eigvalsh(R)[0] <= 0.0:  # correlations no covariance can have
+        return np.diag(d)
+    return R

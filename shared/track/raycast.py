@@ -1,0 +1,169 @@
+"""Distance transform and vectorised ray marching on an occupancy grid (numpy only).
+
+Shared by the simulator's lidar (``services/simulator/lidar.py``) and the localization
+bridge's particle filter (``services/localization_bridge/``), which must not import each other.
+
+Distance transform: for every cell the Euclidean distance between its centre and the nearest
+blocked cell's centre, computed exactly up to a cap ``D`` (larger distances read as ``D``,
+still a valid lower bound):
+
+1. per column, the vertical distance ``g`` [cells] to the nearest blocked cell (running
+   maximum / minimum of blocked row indices), capped at ``D + 1``;
+2. per row, ``d^2(i, j) = min_{|k| <= D} g(i, j + k)^2 + k^2`` (2D + 1 shifted minima).
+
+Exact where the true distance is <= D: the nearest blocked cell then lies within D columns.
+
+Ray marching (all rays at once): a point inside a free cell whose centre is ``d`` from the
+nearest blocked centre is at least ``d - sqrt(2) r`` from any blocked cell (r = cell size), so
+each ray advances by ``max(d - sqrt(2) r, r / 2)`` until it reaches a blocked cell (range =
+midpoint of the last step, error <= r / 4 plus the rasterisation), leaves the map or passes
+``range_max`` (both: ``range_max``, no return).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from shared.track.occupancy import OCCUPIED, UNKNOWN, OccupancyGrid
+
+#: Distances in the ray-marching transform are exact up to this [m]; rays step at most this far.
+EDT_CAP_M = 2.0
+
+__all__ = ["EDT_CAP_M", "RayMarcher", "blocked_cells", "distance_transform", "to_grid_frame"]
+
+
+def distance_transform(blocked: np.ndarray, cap_cells: int) -> np.ndarray:
+    """Euclidean distance [cells] from each cell centre to the nearest blocked centre.
+
+    Args:
+        blocked: (rows, cols) bool, True where beams stop.
+        cap_cells: D; distances above it read as D (exact below).
+
+    Returns:
+        (rows, cols) float32 distances in cells, 0 on blocked cells, at most `cap_cells`.
+    """
+    b = np.asarray(blocked, dtype=bool)
+    rows, cols = b.shape
+    cap = int(cap_cells)
+    big = cap + 1
+    idx = np.arange(rows)[:, None]
+    # 1) vertical distance to the nearest blocked cell in the same column
+    last = np.where(b, idx, -(10 * rows + big))
+    last = np.maximum.accumulate(last, axis=0)
+    nxt = np.where(b, idx, 10 * rows + big)
+    nxt = np.minimum.accumulate(nxt[::-1], axis=0)[::-1]
+    g = np.minimum(np.minimum(idx - last, nxt - idx), big).astype(np.float32)
+    g2 = g * g
+    # 2) horizontal lower envelope over a window of +-cap columns
+    d2 = g2.copy()
+    pad = np.full((rows, cap), float(big * big), dtype=np.float32)
+    padded = np.concatenate([pad, g2, pad], axis=1)
+    for k in range(1, cap + 1):
+        kk = np.float32(k * k)
+        np.minimum(d2, padded[:, cap + k : cap + k + cols] + kk, out=d2)
+        np.minimum(d2, padded[:, cap - k : cap - k + cols] + kk, out=d2)
+    return np.minimum(np.sqrt(d2), np.float32(cap))
+
+
+def blocked_cells(grid: OccupancyGrid, unknown_is_occupied: bool = True) -> np.ndarray:
+    """(rows, cols) bool: the cells that stop a beam (OCCUPIED, and UNKNOWN if asked)."""
+    cells = np.asarray(grid.cells)
+    blocked = cells == OCCUPIED
+    if unknown_is_occupied:
+        blocked |= cells == UNKNOWN
+    return blocked
+
+
+def to_grid_frame(
+    grid: OccupancyGrid, x_m: np.ndarray | float, y_m: np.ndarray | float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Map-frame points [m] -> grid-frame points [m] (from the grid's lower-left corner, along
+    its axes; cell (row, col) covers ``col r <= gx < (col + 1) r``, ``row r <= gy < ...``)."""
+    ox, oy = float(grid.origin_xy_m[0]), float(grid.origin_xy_m[1])
+    c0, s0 = math.cos(-grid.origin_yaw_rad), math.sin(-grid.origin_yaw_rad)
+    px = np.asarray(x_m, dtype=float) - ox
+    py = np.asarray(y_m, dtype=float) - oy
+    return c0 * px - s0 * py, s0 * px + c0 * py
+
+
+class RayMarcher:
+    """Ray casting on a fixed occupancy grid by distance-field-accelerated ray marching.
+
+    Args:
+        grid: the map.
+        unknown_is_occupied: whether UNKNOWN cells stop rays (OCCUPIED ones always do).
+        cap_m: cap of the distance transform [m] (the longest single step).
+
+    Attributes:
+        distance_m: (rows, cols) float64 distance [m] from each cell centre to the nearest
+            blocked centre, capped at `cap_m`.
+    """
+
+    def __init__(
+        self, grid: OccupancyGrid, unknown_is_occupied: bool = True, cap_m: float = EDT_CAP_M
+    ) -> None:
+        self.grid = grid
+        blocked = blocked_cells(grid, unknown_is_occupied)
+        r = float(grid.resolution_m)
+        self.resolution_m = r
+        cap = max(1, int(cap_m / r))
+        dist_m = distance_transform(blocked, cap).astype(np.float64) * r
+        step = np.maximum(dist_m - math.sqrt(2.0) * r, 0.5 * r)
+        # flat step field: a negative value marks a blocked cell
+        self._step = np.where(blocked, -1.0, step).ravel()
+        self._rows, self._cols = blocked.shape
+        self.distance_m = dist_m
+
+    def cast(
+        self,
+        x_m: np.ndarray | float,
+        y_m: np.ndarray | float,
+        angle_rad: np.ndarray | float,
+        range_max_m: float,
+    ) -> np.ndarray:
+        """Ranges [m] of rays from (x, y) [m] along `angle_rad` [rad] (map frame).
+
+        The three arguments broadcast to one shape ``S``; returns float64 ``S`` ranges, at most
+        `range_max_m` (= no return: beyond range or out of the map), 0 for a ray starting in a
+        blocked cell.
+        """
+        g = self.grid
+        gx0, gy0 = to_grid_frame(g, x_m, y_m)
+        ang0 = np.asarray(angle_rad, dtype=float) - g.origin_yaw_rad
+        gx0, gy0, ang0 = np.broadcast_arrays(gx0, gy0, ang0)
+        shape = ang0.shape
+        gx, gy = gx0.ravel(), gy0.ravel()
+        ang = ang0.ravel()
+        n = ang.size
+        dx, dy = np.cos(ang), np.sin(ang)
+        out = np.full(n, float(range_max_m), dtype=np.float64)
+        t = np.zeros(n)
+        last = np.zeros(n)
+        active = np.arange(n)
+        rows, cols = self._rows, self._cols
+        step_field = self._step
+        inv_r = 1.0 / self.resolution_m
+        rmax = float(range_max_m)
+        while active.size:
+            ta = t[active]
+            cx = np.floor((gx[active] + ta * dx[active]) * inv_r).astype(np.int64)
+            cy = np.floor((gy[active] + ta * dy[active]) * inv_r).astype(np.int64)
+            inside = (cx >= 0) & (cx < cols) & (cy >= 0) & (cy < rows)
+            st = np.full(active.size, np.inf)
+            st[inside] = step_field[cy[inside] * cols + cx[inside]]
+            hit = st < 0.0
+            if hit.any():
+                h = active[hit]
+                out[h] = np.maximum(t[h] - 0.5 * last[h], 0.0)
+            # outside the map (inf) or hit: finished; others advance
+            go = ~hit & np.isfinite(st)
+            active = active[go]
+            stp = st[go]
+            t_new = t[active] + stp
+            last[active] = stp
+            t[active] = t_new
+            far = t_new >= rmax
+            active = active[~far]
+        return np.minimum(out, rmax).reshape(shape)

@@ -1,0 +1,46 @@
+"""The bench's estimator in the loop (``--estimator ekf|lidar``): the simulator's sensors
+through the bridge's filter in the same process; ``truth`` adds nothing."""
+
+from __future__ import annotations
+
+import math
+
+from services.bench import build_parser
+from services.bench.closed_loop import LoopOptions, SimulatorPlant
+from services.bench.estimation import InLoopEstimator
+from services.simulator import Command, centreline_pose, rear_axle
+from shared.config.localization import LocalizationSettings
+from shared.config.simulator import SimulatorSettings
+from shared.track import load_track
+
+
+def test_the_estimator_option_parses_and_defaults_to_truth() -> None:
+    assert build_parser().parse_args([]).estimator == "truth"
+    assert build_parser().parse_args(["--estimator", "lidar"]).estimator == "lidar"
+
+
+def test_truth_has_no_estimator_and_ekf_tracks_the_car() -> None:
+    track = load_track("paperlike")
+    sim = SimulatorSettings()
+    assert SimulatorPlant(track, sim, LoopOptions(laps=1)).estimator is None
+    plant = SimulatorPlant(track, sim, LoopOptions(laps=1, estimator="ekf"))
+    est = plant.estimator
+    assert isinstance(est, InLoopEstimator)
+    for _ in range(150):  # 1.5 s along the first straight at 2 m/s
+        est.feed(plant.sim.step(Command(2.0, 0.0), 0.01))
+    x, y, yaw = plant.pose()
+    tx, ty, tyaw = plant.true_pose()
+    assert math.hypot(x - tx, y - ty) < 0.05 and abs(yaw - tyaw) < 0.05
+    err = est.errors()
+    assert err["estimator"] == "ekf" and err["invalid_ticks"] == 0
+    assert err["counts"]["pose_applied"] > 40
+
+
+def test_the_start_pose_is_the_rear_axle_of_the_bench_start() -> None:
+    track = load_track("paperlike")
+    sim = SimulatorSettings()
+    p = centreline_pose(track, 0.3)
+    start = rear_axle(p.x_m, p.y_m, p.yaw_rad, sim.vehicle.lr_m)
+    est = InLoopEstimator("ekf", track, sim, LocalizationSettings(), start)
+    e = est.filter.estimate(0.0)
+    assert e.valid and math.hypot(e.x_m - start[0], e.y_m - start[1]) < 1e-9
