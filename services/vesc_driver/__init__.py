@@ -11,6 +11,7 @@ its serial loop) and ``service`` (the Zenoh shell).
 from services.vesc_driver.conversions import ActuatorCommand, convert_command
 from services.vesc_driver.driver import (
     DriverCounters,
+    ImuRecord,
     OdometryRecord,
     TickResult,
     VescDriver,
@@ -37,6 +38,7 @@ __all__ = [
     "DriverCounters",
     "Frame",
     "FrameDecoder",
+    "ImuRecord",
     "LinkCounters",
     "LinkState",
     "OdometryRecord",

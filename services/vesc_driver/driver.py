@@ -20,7 +20,10 @@ Per tick, frames are written in this order:
   ALIVE;
 * no fresh command: SET_CURRENT_BRAKE ``brake_current_a`` on every tick (the brake is held
   until a command arrives); the servo is left where it was and no ALIVE is sent;
-* GET_VALUES when due (``poll_values_rate_hz``).
+* GET_VALUES when due (``poll_values_rate_hz``);
+* GET_IMU_DATA when due (``poll_imu_rate_hz``; mask ``shared.vesc.imu.DRIVER_MASK``:
+  accelerations and rates). A reply becomes an ``ImuRecord`` in the car frame (the
+  ``[vesc]`` mounting rotation applied, ``shared.vesc.imu.imu_in_car``).
 
 If the driver's process hangs nothing is sent at all, and the VESC's firmware timeout
 releases the motor.
@@ -44,6 +47,7 @@ from shared.config.vesc import VescSettings
 from shared.messages import VescStatusName
 from shared.vesc.conversions import erpm_to_speed, servo_to_steering, yaw_rate_from
 from shared.vesc.decoder import FrameDecoder
+from shared.vesc.imu import DRIVER_MASK, encode_get_imu_data, imu_in_car, is_imu_reply, parse_imu
 from shared.vesc.protocol import (
     encode_alive,
     encode_get_values,
@@ -87,6 +91,22 @@ class OdometryRecord:
 
 
 @dataclass(frozen=True, slots=True)
+class ImuRecord:
+    """The VESC's IMU in the car frame, from one GET_IMU_DATA reply.
+
+    Attributes:
+        stamp_s: driver clock [s] when the reply was decoded.
+        yaw_rate_radps: yaw rate [rad/s], counter-clockwise positive.
+        ax_mps2, ay_mps2: specific force forward / left [m/s^2].
+    """
+
+    stamp_s: float
+    yaw_rate_radps: float
+    ax_mps2: float
+    ay_mps2: float
+
+
+@dataclass(frozen=True, slots=True)
 class TickResult:
     """What one tick did and learned.
 
@@ -99,6 +119,7 @@ class TickResult:
         status: "ok" | "fault" | "stale" | "disconnected" (see ``VescStateRecord``).
         state: the newest GET_VALUES reply decoded since the previous tick, or None.
         odometry: odometry from that reply, or None.
+        imu: the newest GET_IMU_DATA reply since the previous tick (car frame), or None.
     """
 
     stamp_s: float
@@ -109,6 +130,7 @@ class TickResult:
     status: str
     state: VescStateRecord | None = None
     odometry: OdometryRecord | None = None
+    imu: ImuRecord | None = None
 
 
 @dataclass(slots=True)
@@ -124,7 +146,10 @@ class DriverCounters:
         frames_written: frames handed to the port; write_failures: ticks whose write failed.
         values_replies: GET_VALUES replies parsed.
         malformed_values: GET_VALUES replies too short for even the first field.
-        other_frames: decoded frames that are not GET_VALUES replies (ignored).
+        imu_replies: GET_IMU_DATA replies parsed.
+        malformed_imu: GET_IMU_DATA replies whose length does not match their mask, with a
+            non-finite value, or without the acceleration and rate vectors (dropped).
+        other_frames: decoded frames that are neither reply (ignored).
     """
 
     commands: int = 0
@@ -136,6 +161,8 @@ class DriverCounters:
     write_failures: int = 0
     values_replies: int = 0
     malformed_values: int = 0
+    imu_replies: int = 0
+    malformed_imu: int = 0
     other_frames: int = 0
 
     def as_dict(self) -> dict[str, int]:
@@ -147,6 +174,7 @@ class DriverCounters:
 class _Pending:
     state: VescStateRecord | None = None
     odometry: OdometryRecord | None = None
+    imu: ImuRecord | None = None
 
 
 class VescDriver:
@@ -189,11 +217,15 @@ class VescDriver:
         self._last_values_s: float | None = None
         self._last_values: VescValues | None = None
         self._next_poll_s = float("-inf")
+        self._next_imu_poll_s = float("-inf")
+        self._imu_rotation = settings.imu_mounting()
+        self._last_imu_s: float | None = None
         self._link_epoch = self.link.counters.connects
         self._pending = _Pending()
         self._brake_frame = encode_set_current_brake(settings.brake_current_a)
         self._alive_frame = encode_alive()
         self._poll_frame = encode_get_values()
+        self._imu_poll_frame = encode_get_imu_data(DRIVER_MASK)
 
     def now(self) -> float:
         """The driver's clock [s]."""
@@ -233,6 +265,9 @@ class VescDriver:
             return 0
         frames = self.decoder.feed(data)
         for frame in frames:
+            if is_imu_reply(frame.payload):
+                self._on_imu_payload(frame.payload, now)
+                continue
             if not is_values_reply(frame.payload):
                 self.counters.other_frames += 1
                 continue
@@ -249,6 +284,25 @@ class VescDriver:
         if epoch != self._link_epoch:
             self._link_epoch = epoch
             self.decoder.reset()  # drop a half frame from before the port was lost
+
+    def _on_imu_payload(self, payload: bytes, now: float) -> None:
+        imu = parse_imu(payload)
+        car = imu_in_car(imu, self._imu_rotation) if imu is not None else None
+        if car is None:
+            self.counters.malformed_imu += 1
+            return
+        self.counters.imu_replies += 1
+        self._last_imu_s = now
+        self._pending.imu = ImuRecord(
+            stamp_s=now,
+            yaw_rate_radps=car.yaw_rate_radps,
+            ax_mps2=car.ax_mps2,
+            ay_mps2=car.ay_mps2,
+        )
+
+    def imu_age_s(self, now: float) -> float | None:
+        """Time [s] since the newest valid IMU reply (None before any)."""
+        return None if self._last_imu_s is None else now - self._last_imu_s
 
     def _on_values(self, values: VescValues, now: float) -> None:
         self._last_values = values
@@ -313,6 +367,10 @@ class VescDriver:
             period = 1.0 / self.settings.poll_values_rate_hz
             # keep the phase; after a stall do not send a burst of requests
             self._next_poll_s = max(self._next_poll_s + period, now + 0.5 * period)
+        if self.settings.poll_imu_rate_hz > 0.0 and now >= self._next_imu_poll_s:
+            frames.append(self._imu_poll_frame)
+            period = 1.0 / self.settings.poll_imu_rate_hz
+            self._next_imu_poll_s = max(self._next_imu_poll_s + period, now + 0.5 * period)
         return frames, braking, wd
 
     def tick(self, now: float) -> TickResult:
@@ -342,6 +400,7 @@ class VescDriver:
             status=self.status(now),
             state=pending.state,
             odometry=pending.odometry,
+            imu=pending.imu,
         )
 
     # -- loop --------------------------------------------------------------------------------

@@ -21,7 +21,11 @@ Threads:
   service's ``on_tick`` does no bus I/O: tick results and events go to a bounded out-box.
 * the main thread (``VescService.serve``): publishes the out-box - ``vesc/state`` and
   ``vehicle/odom`` for every reply (at the tick after its decode, at most one period later,
-  stamped with the decode time in wall-clock seconds), ``events/log`` for port lost / back,
+  stamped with the decode time in wall-clock seconds), ``vehicle/imu`` for every
+  GET_IMU_DATA reply with ``[vesc] poll_imu_rate_hz`` > 0 (car frame, the mounting rotation
+  applied; a reply outside the message's limits is left out and counted), a warning when no
+  IMU reply came for ``[vesc] stale_imu_s`` while the port is open, ``events/log`` for port
+  lost / back,
   watchdog braking / commands resumed, invalid commands, invalid bus payloads (the bus's
   ``DropCounter`` grew: ``shared.bus.DropReporter``) and reply values the messages reject.
   Every kind of event is rate-limited to one per ``[vesc] event_interval_s`` (suppressed ones
@@ -46,15 +50,22 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from services.vesc_driver.driver import OdometryRecord, TickResult, VescDriver, VescStateRecord
+from services.vesc_driver.driver import (
+    ImuRecord,
+    OdometryRecord,
+    TickResult,
+    VescDriver,
+    VescStateRecord,
+)
 from services.vesc_driver.serial_link import LinkState, SerialLink
 from services.vesc_driver.watchdog import WatchdogState
 from shared.bus import Bus, DropOldestQueue
 from shared.config import RacestackConfig
 from shared.config.vesc import VescSettings
-from shared.keys import DRIVE_CMD, EVENTS_LOG, ODOM, VESC_STATE
+from shared.keys import DRIVE_CMD, EVENTS_LOG, IMU, ODOM, VESC_STATE
 from shared.messages import (
     DriveCmd,
+    Imu,
     LogEvent,
     LogLevelName,
     MessageError,
@@ -147,6 +158,28 @@ def odom_message(rec: OdometryRecord, stamp_s: float) -> tuple[Odom | None, tupl
     return odom, tuple(bad)
 
 
+def imu_message(rec: ImuRecord, stamp_s: float) -> tuple[Imu | None, tuple[str, ...]]:
+    """The ``vehicle/imu`` record of one IMU reply (car frame).
+
+    Any value outside the message's limits -> no record (a reading with one impossible axis
+    is not trusted for the others). Returns the record (or None) and the rejected fields.
+    """
+    values = {
+        "yaw_rate_radps": rec.yaw_rate_radps,
+        "ax_mps2": rec.ax_mps2,
+        "ay_mps2": rec.ay_mps2,
+    }
+    bad: list[str] = []
+    for name, value in values.items():
+        try:
+            Imu.check_field(name, value)
+        except MessageError:
+            bad.append(name)
+    if bad:
+        return None, tuple(bad)
+    return Imu(stamp_s=stamp_s, **values), ()
+
+
 # --------------------------------------------------------------------------- out-box items
 @dataclass(frozen=True, slots=True)
 class _Say:
@@ -159,6 +192,7 @@ class _Reply:
     status: str
     state: VescStateRecord | None
     odometry: OdometryRecord | None
+    imu: ImuRecord | None = None
 
 
 _Item = _Say | _Reply
@@ -173,6 +207,7 @@ class VescService(Service):
         subscribes(DRIVE_CMD, DriveCmd),
         publishes(VESC_STATE, VescState),
         publishes(ODOM, Odom),
+        publishes(IMU, Imu),
         publishes(EVENTS_LOG, LogEvent),
     )
 
@@ -227,6 +262,13 @@ class VescService(Service):
         self._last_state_pub_s = -math.inf
         self.pub_state = self.publisher(VESC_STATE)
         self.pub_odom = self.publisher(ODOM)
+        self.pub_imu = self.publisher(IMU)
+        self.imu_published = 0
+        self._imu_stale = GrowthLimiter(settings.event_interval_s)
+        self._imu_stale_count = 0
+        self._imu_was_stale = False
+        self._imu_ref_s: float | None = None  # when the open port began to owe IMU replies
+        self._imu_ref_epoch = -1
         self.sub = self.subscribe(DRIVE_CMD, self.on_drive_cmd)
 
     @classmethod
@@ -309,8 +351,8 @@ class VescService(Service):
                 key = self.bus.keys.drive_cmd
                 self._say(LogLevelName.INFO, f"waiting for the first drive command on {key}")
             self._prev_wd = wd
-        if result.state is not None or result.odometry is not None:
-            self.outbox.put(_Reply(result.status, result.state, result.odometry))
+        if result.state is not None or result.odometry is not None or result.imu is not None:
+            self.outbox.put(_Reply(result.status, result.state, result.odometry, result.imu))
 
     def _say(self, level: str, text: str) -> None:
         self.outbox.put(_Say(level, text))
@@ -394,6 +436,13 @@ class VescService(Service):
                 self.rejected_fields.update(f"odom.{b}" for b in bad)
                 if odom is not None:
                     self.pub_odom.put(odom)
+        if item.imu is not None:
+            with faults.guard(self.pub_imu.key):
+                imu, bad = imu_message(item.imu, self._stamp(item.imu.stamp_s))
+                self.rejected_fields.update(f"imu.{b}" for b in bad)
+                if imu is not None:
+                    self.pub_imu.put(imu)
+                    self.imu_published += 1
 
     def _check_counters(self, now: float) -> None:
         """Rate-limited events for grown drop / invalid-command / rejected-field counts."""
@@ -415,10 +464,41 @@ class VescService(Service):
                 f"{rejected} VESC reply values outside the message limits were left out "
                 f"({', '.join(parts)})",
             )
+        self._check_imu(now)
         if now - self._last_state_pub_s >= STATUS_ONLY_INTERVAL_S:
             msg, _ = vesc_state_message(None, self.status, self.wall_clock())
             self.pub_state.put(msg)
             self._last_state_pub_s = now
+
+    def _check_imu(self, now: float) -> None:
+        """Warn (rate-limited) while the IMU is polled, the port is open and no valid IMU
+        reply came for ``stale_imu_s``; say when the replies are back."""
+        s = self.settings
+        if s.poll_imu_rate_hz <= 0.0 or not self.driver.link.connected:
+            return
+        if self._imu_ref_s is None or self._imu_ref_epoch != self.driver.link.counters.connects:
+            # (re)connected: give the first replies stale_imu_s from now
+            self._imu_ref_s = now
+            self._imu_ref_epoch = self.driver.link.counters.connects
+        age = self.driver.imu_age_s(now)
+        if age is None or age > now - self._imu_ref_s:
+            age = now - self._imu_ref_s
+        if age > s.stale_imu_s:
+            if not self._imu_was_stale:
+                self._imu_stale_count += 1
+            self._imu_was_stale = True
+            if self._imu_stale.check(self._imu_stale_count, now):
+                c = self.driver.counters
+                self.say(
+                    LogLevelName.WARNING,
+                    f"no valid VESC IMU reply for {age:.1f} s ({c.imu_replies} replies, "
+                    f"{c.malformed_imu} malformed so far): vehicle/imu is silent",
+                )
+        elif self._imu_was_stale:
+            self._imu_was_stale = False
+            self.say(
+                LogLevelName.INFO, "VESC IMU replies back: publishing vehicle/imu", limit="imu_back"
+            )
 
     def _log_waiting(self) -> None:
         link = self.driver.link
@@ -439,6 +519,7 @@ class VescService(Service):
         out["service.own_faults"] = self.bus.faults.total
         out["service.outbox_dropped"] = self.outbox.dropped
         out["service.rejected_fields"] = sum(self.rejected_fields.values())
+        out["service.imu_published"] = self.imu_published
         return out
 
     def close(self) -> None:

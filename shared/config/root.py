@@ -19,13 +19,21 @@ from shared.config.bus import BusSettings
 from shared.config.lidar import LidarDriverSettings
 from shared.config.localization import LocalizationSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
+from shared.config.ros2 import Ros2Settings
 from shared.config.simulator import SimulatorSettings
 from shared.config.telemetry import TelemetrySettings
 from shared.config.vesc import VescSettings
 
 
 class TrackSettings(Section):
-    """Which track to race: a built-in name (``builtin:paperlike``), a folder or a file."""
+    """Which track to race: a built-in name (``builtin:paperlike``), a folder or a file.
+
+    Attributes:
+        source: ``builtin:paperlike`` / ``builtin:gentle``, a folder holding a track, an
+            F1TENTH centreline CSV, the centre file of a CiMPCC waypoint triple, or a ROS
+            map_server ``MAP.yaml`` (its centreline and widths are extracted from the map,
+            see ``racestack track --from-map``); relative paths are from the working folder.
+    """
 
     source: str = Field("builtin:paperlike", min_length=1)
 
@@ -42,6 +50,7 @@ class RacestackConfig(Section):
     vesc: VescSettings = VescSettings()
     lidar_driver: LidarDriverSettings = LidarDriverSettings()
     telemetry: TelemetrySettings = TelemetrySettings()
+    ros2: Ros2Settings = Ros2Settings()
 
 
 def _format_errors(source: str, exc: ValidationError) -> str:

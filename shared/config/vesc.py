@@ -9,12 +9,21 @@ Conversion conventions are those of the F1TENTH VESC driver
 
 ``speed_sign`` applies in both directions, so a commanded speed reads back with its own sign;
 set it to -1 when the motor is wired so that positive ERPM drives the car backwards.
+
+The VESC's IMU (``COMM_GET_IMU_DATA``, ``shared.vesc.imu``) is polled at ``poll_imu_rate_hz``
+(0 = off, the default: a VESC without an IMU chip answers zeros) and published on
+``vehicle/imu``. Its mounting is the board's orientation in the car, ``imu_roll_deg``,
+``imu_pitch_deg``, ``imu_yaw_deg`` (``R = Rz(yaw) Ry(pitch) Rx(roll)``, ``v_car = R v_board``)
+or a full ``imu_rotation`` (3x3, rows of ``R``; then the angles must stay 0). These act on top
+of the rotation set in the VESC Tool (the firmware applies that one before it answers).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
+import numpy as np
 from pydantic import Field, model_validator
 
 from shared.car import CAR
@@ -96,6 +105,37 @@ class VescSettings(Section):
         allow_inf_nan=False,
         description="shortest interval between two events/log records of one kind [s]",
     )
+    poll_imu_rate_hz: float = Field(
+        0.0,
+        ge=0.0,
+        le=1000.0,
+        allow_inf_nan=False,
+        description=(
+            "GET_IMU_DATA rate (0 = off); at most one request per tick, so the rate is "
+            "capped by command_rate_hz"
+        ),
+    )
+    imu_roll_deg: float = Field(
+        0.0, ge=-180.0, le=180.0, allow_inf_nan=False, description="board roll in the car [deg]"
+    )
+    imu_pitch_deg: float = Field(
+        0.0, ge=-90.0, le=90.0, allow_inf_nan=False, description="board pitch in the car [deg]"
+    )
+    imu_yaw_deg: float = Field(
+        0.0, ge=-180.0, le=180.0, allow_inf_nan=False, description="board yaw in the car [deg]"
+    )
+    imu_rotation: tuple[
+        tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]
+    ] | None = Field(
+        None,
+        description=(
+            "board-to-car rotation matrix (3 rows of 3; orthonormal, det +1); overrides the "
+            "three angles, which must then be 0"
+        ),
+    )
+    stale_imu_s: float = Field(
+        0.5, gt=0.0, le=60.0, allow_inf_nan=False, description="no IMU reply for this -> warn"
+    )
     invalid_command: Literal["brake", "clamp"] = Field(
         "clamp",
         description=(
@@ -114,4 +154,24 @@ class VescSettings(Section):
             raise ValueError("reconnect_backoff_max_s must be >= reconnect_backoff_initial_s")
         if abs(self.speed_to_erpm_offset) >= self.max_abs_erpm:
             raise ValueError("|speed_to_erpm_offset| must be below max_abs_erpm")
+        if self.imu_rotation is not None:
+            if (self.imu_roll_deg, self.imu_pitch_deg, self.imu_yaw_deg) != (0.0, 0.0, 0.0):
+                raise ValueError("give either imu_rotation or the imu_*_deg angles, not both")
+            r = np.asarray(self.imu_rotation, dtype=float)
+            if not np.all(np.isfinite(r)):
+                raise ValueError("imu_rotation must be finite")
+            if not np.allclose(r @ r.T, np.eye(3), atol=1e-3) or np.linalg.det(r) < 0.0:
+                raise ValueError("imu_rotation must be a rotation (orthonormal rows, det +1)")
         return self
+
+    def imu_mounting(self) -> np.ndarray:
+        """(3, 3) board-to-car rotation ``R`` (``v_car = R v_board``) of the VESC's IMU."""
+        from shared.vesc.imu import rotation_from_rpy
+
+        if self.imu_rotation is not None:
+            return np.asarray(self.imu_rotation, dtype=float)
+        return rotation_from_rpy(
+            math.radians(self.imu_roll_deg),
+            math.radians(self.imu_pitch_deg),
+            math.radians(self.imu_yaw_deg),
+        )

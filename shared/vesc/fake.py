@@ -17,7 +17,11 @@ What it models:
   motor state (``default_reply_values``: ``erpm`` = the commanded ERPM in RPM mode,
   ``avg_motor_current_a`` = minus the brake current while braking, the timeout status bit).
   The public hook ``reply_values(state, reply) -> VescValues`` replaces that reply, e.g. the
-  simulator reports its simulated wheel speed as ``erpm``.
+  simulator reports its simulated wheel speed as ``erpm``;
+* COMM_GET_IMU_DATA is answered (``shared.vesc.imu`` layout, the request's mask) with the
+  board reading ``imu`` (a ``FakeImu``: level and at rest by default), or what the hook
+  ``reply_imu(state, imu) -> FakeImu`` returns (the simulator: its yaw rate and
+  accelerations); ``imu_replies_enabled = False`` leaves the requests unanswered.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from shared.vesc.decoder import FrameDecoder
+from shared.vesc.imu import encode_imu_payload, imu_request_mask
 from shared.vesc.protocol import (
     TIMEOUT_RESETTING_COMMANDS,
     CommandId,
@@ -94,6 +99,26 @@ class FakeMotorState:
 #: Replaces the GET_VALUES reply: ``(motor state, the reply the fake would send) -> values``.
 ReplyValuesHook = Callable[[FakeMotorState, VescValues], VescValues]
 
+
+@dataclass(frozen=True, slots=True)
+class FakeImu:
+    """The fake's IMU board reading (board frame, the firmware's units).
+
+    Attributes:
+        rpy_rad: roll, pitch, yaw [rad]; accel_g: specific force [g] (+1 on z at rest);
+        gyro_dps: rates [deg/s]; mag: field [uT]; quat: q0 (w), q1, q2, q3.
+    """
+
+    rpy_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    accel_g: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    gyro_dps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mag: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+
+#: Replaces the IMU reply: ``(motor state, the reading the fake would send) -> reading``.
+ReplyImuHook = Callable[[FakeMotorState, FakeImu], FakeImu]
+
 #: The reply template (a sitting car on a 4S battery); the fake overwrites the live fields.
 DEFAULT_VALUES = VescValues(
     temp_fet_c=31.5,
@@ -151,6 +176,9 @@ class FakeVescModel:
         reply_length: truncate replies to this many payload bytes (older firmware), or None.
         replies_enabled: False -> GET_VALUES requests are counted but not answered.
         reply_values: the ``ReplyValuesHook``, or None for ``default_reply_values``.
+        imu: the board reading the IMU replies carry (``FakeImu``).
+        imu_replies_enabled: False -> GET_IMU_DATA requests are counted but not answered.
+        reply_imu: the ``ReplyImuHook``, or None for ``imu`` as is.
     """
 
     def __init__(
@@ -161,9 +189,17 @@ class FakeVescModel:
         reply_length: int | None = None,
         reply_values: ReplyValuesHook | None = None,
         max_events: int = MAX_EVENTS,
+        imu: FakeImu | None = None,
+        reply_imu: ReplyImuHook | None = None,
     ) -> None:
         """Create the model in the released state (arguments: see the class attributes;
         ``max_events``: events kept, the oldest dropped; 0 keeps none)."""
+        self.imu = imu or FakeImu()
+        self.imu_replies_enabled = True
+        self.reply_imu = reply_imu
+        #: GET_IMU_DATA requests seen, and replies returned for them.
+        self.imu_requests = 0
+        self.imu_replies_sent = 0
         self.timeout_s = timeout_s
         self.values = values
         self.reply_length = reply_length
@@ -207,6 +243,8 @@ class FakeVescModel:
         elif cid == CommandId.SET_DUTY:
             st = replace(st, mode=MODE_DUTY)
         self.state = st
+        if cid == CommandId.GET_IMU_DATA:
+            return self._imu_reply(payload)
         if cid != CommandId.GET_VALUES:
             return b""
         self.values_requests += 1
@@ -237,6 +275,31 @@ class FakeVescModel:
         self.decoder.reset()
 
     # -- output --------------------------------------------------------------------------
+    def imu_reading(self) -> FakeImu:
+        """The IMU board reading now (the hook's, if one is set)."""
+        return self.imu if self.reply_imu is None else self.reply_imu(self.state, self.imu)
+
+    def _imu_reply(self, payload: bytes) -> bytes:
+        mask = imu_request_mask(payload)
+        self.imu_requests += 1
+        if mask is None or not self.imu_replies_enabled:
+            return b""
+        r = self.imu_reading()
+        try:
+            body = encode_imu_payload(
+                mask,
+                rpy_rad=r.rpy_rad,
+                accel_g=r.accel_g,
+                gyro_dps=r.gyro_dps,
+                mag=r.mag,
+                quat=r.quat,
+                controller_id=self.values.controller_id or 0,
+            )
+        except ValueError:  # a non-finite reading: the fake stays silent, as on a glitch
+            return b""
+        self.imu_replies_sent += 1
+        return encode_frame(body)
+
     def reply(self) -> VescValues:
         """The GET_VALUES reply values now (the hook's, if one is set)."""
         base = default_reply_values(self.values, self.state)

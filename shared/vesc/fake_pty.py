@@ -35,8 +35,10 @@ from shared.vesc.fake import (
     DEFAULT_VALUES,
     MAX_EVENTS,
     FakeEvent,
+    FakeImu,
     FakeMotorState,
     FakeVescModel,
+    ReplyImuHook,
     ReplyValuesHook,
 )
 from shared.vesc.values import VescValues
@@ -105,6 +107,9 @@ class FakeVesc:
     reply_length = _model_setting("reply_length", "reply payload length [bytes] or None")
     replies_enabled = _model_setting("replies_enabled", "False: GET_VALUES is not answered")
     reply_values = _model_setting("reply_values", "the ReplyValuesHook or None")
+    imu = _model_setting("imu", "the IMU board reading (FakeImu) of GET_IMU_DATA replies")
+    imu_replies_enabled = _model_setting("imu_replies_enabled", "False: no IMU replies")
+    reply_imu = _model_setting("reply_imu", "the ReplyImuHook or None")
 
     def __init__(
         self,
@@ -116,6 +121,8 @@ class FakeVesc:
         max_events: int = MAX_EVENTS,
         link_dir: str | Path | None = None,
         clock: Callable[[], float] = time.monotonic,
+        imu: FakeImu | None = None,
+        reply_imu: ReplyImuHook | None = None,
     ) -> None:
         """Create the pty and start the fake's thread.
 
@@ -131,6 +138,9 @@ class FakeVesc:
             link_dir: folder for the stable symlink (default: a new temporary folder,
                 removed by ``close()``).
             clock: time source [s] of the event and motor-state timestamps.
+            imu: the IMU board reading of GET_IMU_DATA replies (default: level, at rest).
+            reply_imu: ``(motor state, reading) -> reading`` replacing each IMU reply's
+                reading (runs on the fake's thread with its lock held, like reply_values).
         """
         self.model = FakeVescModel(
             timeout_s=timeout_s,
@@ -138,6 +148,8 @@ class FakeVesc:
             reply_length=reply_length,
             reply_values=reply_values,
             max_events=max_events,
+            imu=imu,
+            reply_imu=reply_imu,
         )
         self._clock = clock
         self._own_dir = link_dir is None
@@ -177,6 +189,16 @@ class FakeVesc:
     def replies_sent(self) -> int:
         """GET_VALUES replies sent so far."""
         return self.model.replies_sent
+
+    @property
+    def imu_requests(self) -> int:
+        """GET_IMU_DATA requests seen so far."""
+        return self.model.imu_requests
+
+    @property
+    def imu_replies_sent(self) -> int:
+        """GET_IMU_DATA replies sent so far."""
+        return self.model.imu_replies_sent
 
     def motor_state(self) -> FakeMotorState:
         """A consistent copy of what the commands applied (mode, newest values, timeout)."""

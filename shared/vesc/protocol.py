@@ -54,6 +54,7 @@ class CommandId(IntEnum):
     SET_RPM = 8
     SET_SERVO_POS = 12
     ALIVE = 30
+    GET_IMU_DATA = 65
 
 
 #: Commands that reset the firmware's command timeout (SET_SERVO_POS does not).
