@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import psutil
 
+from services.telemetry import find_segments
 from shared.net import free_loopback_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -156,7 +157,7 @@ def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
                     proc.wait(timeout=5)
     stats_path = run_dir / "telemetry_stats.json"
     stats = json.loads(stats_path.read_text()) if stats_path.exists() else {}
-    rrd = run_dir / "telemetry.rrd"
+    segments = find_segments(run_dir)  # the recording's one-minute segments
     return {
         "track": track.name,
         "laps": laps,
@@ -174,7 +175,7 @@ def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
         "seq_gaps": stats.get("seq_gaps"),
         "record_errors": stats.get("record_errors"),
         "top_threads_cpu_s": threads,
-        "rrd_mb": rrd.stat().st_size / 1e6 if rrd.exists() else None,
+        "rrd_mb": sum(f.stat().st_size for f in segments) / 1e6 if segments else None,
         "exit_code": proc.returncode,
         "run_dir": str(run_dir),
     }

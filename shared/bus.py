@@ -23,17 +23,20 @@ Rules this module enforces (see ``/work/shared/docs/zenoh-rerun-notes.md``):
   payloads are dropped and counted per key and reason (``DropCounter``), logged once per
   burst; no exception ever escapes into Zenoh's thread.
 * A latency-critical input (the bridge's poses, the planner's states) is a
-  ``ChannelSubscription`` instead: Zenoh queues samples in a ring channel without running
-  Python on its thread, and the consumer's own thread blocks in ``recv`` (GIL released)
-  and decodes there. Measured on 2 cores at 40 Hz: round trip 0.55-0.59 ms median,
-  0.95-0.97 ms p99, against 0.66-0.69 / 1.27-1.40 ms for callback + hand-over.
+  ``ChannelSubscription`` instead: the Zenoh callback decodes and validates each sample, so
+  garbage is rejected before it can enter the small ring (capacity 1 by default) and never
+  pushes out a valid record; the consumer's own thread blocks in ``recv`` (GIL released).
+  Every sample is accounted for: ``stats()`` gives received = valid + rejected + dropped
+  (overwritten by a newer valid record, or stale) + pending. (Issue 15: when the ring held
+  raw samples and decoding ran in ``recv``, garbage at 1000 Hz displaced valid poses.)
 * ``Bus.close`` (and ``__exit__``) always closes the session: a process with a callback
   subscriber never exits while its session is open; a thread in ``recv`` returns None.
 * A service never dies of its own invalid record: ``TypedPublisher.try_put(**fields)`` builds
   and publishes a record, and one that fails validation is not sent but counted per key and
   reason in ``Bus.faults`` (a ``FaultCounter``, logged once per burst);
   ``FaultCounter.guard(key)`` does the same around code that builds records itself.
-  ``DropReporter`` publishes the growth of both counters on ``events/log``.
+  ``DropReporter`` publishes the growth of these counters and of ``Bus.displaced`` (valid
+  records a channel dropped) on ``events/log``.
 """
 
 from __future__ import annotations
@@ -41,10 +44,11 @@ from __future__ import annotations
 import collections
 import contextlib
 import logging
+import re
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar
 
 import zenoh
 
@@ -234,13 +238,15 @@ class DropOldestQueue(Generic[T]):
         self._items: collections.deque[T] = collections.deque(maxlen=maxlen)
         self.dropped = 0  #: items dropped because the queue was full
 
-    def put(self, item: T) -> None:
-        """Append `item`, dropping the oldest one if full."""
+    def put(self, item: T) -> bool:
+        """Append `item`, dropping the oldest one if full; True when one was dropped."""
         with self._cond:
-            if len(self._items) == self._items.maxlen:
+            full = len(self._items) == self._items.maxlen
+            if full:
                 self.dropped += 1
             self._items.append(item)
             self._cond.notify_all()
+        return full
 
     def get(self, timeout_s: float = 0.0) -> T | None:
         """The oldest item, waiting up to `timeout_s` [s]; None if still empty."""
@@ -269,12 +275,38 @@ def zenoh_config(
     service: str | None = None,
     mode: Mode | None = None,
 ) -> zenoh.Config:
-    """The ``zenoh.Config`` of one process (see ``BusSettings.session_plan``)."""
-    plan = settings.session_plan(listen_default=listen_default, service=service, mode=mode)
+    """The ``zenoh.Config`` of one process (see ``BusSettings.session_plan``).
+
+    In the secure profile (``security = "mtls"``) ``$RACESTACK_CERTS_DIR`` overrides
+    ``[bus] certs_dir``, and a missing certificate file is a ``ConfigError`` naming it.
+    """
+    import os
+
+    from shared.config import ConfigError
+    from shared.security.identities import CERTS_DIR_ENV
+
+    plan = settings.session_plan(
+        listen_default=listen_default,
+        service=service,
+        mode=mode,
+        certs_dir=os.environ.get(CERTS_DIR_ENV) or None,
+    )
+    if plan.tls is not None and plan.tls.missing():
+        raise ConfigError(
+            f"{service}: secure profile: missing {', '.join(plan.tls.missing())} "
+            "(make them with: racestack certs --out DIR, and set [bus] certs_dir)"
+        )
     cfg = zenoh.Config()
     for path, value in plan.zenoh_entries().items():
         cfg.insert_json5(path, value)
     return cfg
+
+
+def enable_zenoh_log(directives: str) -> None:
+    """Turn on Zenoh's own log (Rust ``tracing``, written to this process's stderr) with
+    `directives` (``RUST_LOG`` syntax; a ``RUST_LOG`` in the environment wins). Once per
+    process; the router uses it to count access-control denials."""
+    zenoh.init_log_from_env_or(directives)
 
 
 def open_session(
@@ -294,10 +326,40 @@ def open_session(
         mode: the service's built-in Zenoh mode (None: ``settings.mode``).
 
     The caller must close the session (``Bus`` does). Never fork after this call.
+
+    Raises:
+        BusOpenError: Zenoh refused (e.g. an endpoint to listen on is in use), one line.
     """
-    return zenoh.open(
-        zenoh_config(settings, listen_default=listen_default, service=service, mode=mode)
-    )
+    config = zenoh_config(settings, listen_default=listen_default, service=service, mode=mode)
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        raise BusOpenError(str(exc)) from exc
+
+
+class BusOpenError(RuntimeError):
+    """A Zenoh session could not be opened; ``str()`` is one line saying why and what to do.
+
+    Attributes:
+        endpoint: the endpoint Zenoh named (e.g. ``tcp/127.0.0.1:7447``), or None.
+        in_use: True when that endpoint's port is already taken by another process.
+    """
+
+    def __init__(self, zenoh_text: str) -> None:
+        found = re.search(r"bound to (\S+?):? \[", zenoh_text)
+        self.endpoint: str | None = found.group(1) if found else None
+        self.in_use = "Address already in use" in zenoh_text
+        if self.in_use:
+            where = self.endpoint or "the hub endpoint"
+            line = (
+                f"cannot listen on {where}: the port is already in use (is a router or "
+                "another racestack up still running?); stop it, or set another port in "
+                "[bus] listen"
+            )
+        else:  # Zenoh's own text without the Rust source locations
+            line = "cannot open the Zenoh session: " + re.sub(r" at /\S+\.rs:\d+\.?", "",
+                                                               zenoh_text).strip()
+        super().__init__(" ".join(line.split()))
 
 
 def wait_matching(publisher: TypedPublisher[Any] | zenoh.Publisher, timeout_s: float) -> bool:
@@ -415,10 +477,12 @@ class Subscription(Generic[M]):
         drops: DropCounter,
         callback: Callable[[M], None] | None = None,
         queue_size: int = 0,
+        displaced: DropCounter | None = None,
     ) -> None:
         self.key = key
         self.msg_type = msg_type
         self._drops = drops
+        self._displaced = displaced
         self._callback = callback
         self._slot: LatestSlot[M] = LatestSlot()
         self._queue: DropOldestQueue[M] | None = DropOldestQueue(queue_size) if queue_size else None
@@ -443,8 +507,8 @@ class Subscription(Generic[M]):
         self.seq_gaps += gaps
         self.received += 1
         self._slot.put(msg)
-        if self._queue is not None:
-            self._queue.put(msg)
+        if self._queue is not None and self._queue.put(msg) and self._displaced is not None:
+            self._displaced.record(key, "queue_full", "the oldest queued record was dropped")
         if self._callback is not None:
             try:
                 self._callback(msg)
@@ -533,69 +597,170 @@ def _count_seq(last_seq: dict[str, int], key: str, msg: Message) -> int:
     return 0
 
 
-class ChannelSubscription(Generic[M]):
-    """Records of one key, received by a blocking ``recv`` in the consumer's own thread.
+class ChannelStats(NamedTuple):
+    """The counts of one ``ChannelSubscription`` (a consistent snapshot).
 
-    For a service's latency-critical input: Zenoh keeps the newest ``capacity`` samples in a
-    ring channel without running Python on its own thread; ``recv`` waits in Zenoh with the
-    GIL released, then decodes and validates in the calling thread. Invalid payloads are
-    counted in the bus's ``DropCounter`` and skipped. One consumer thread only; stop it by
-    closing the ``Bus`` (``recv`` then returns None), not by undeclaring.
+    ``received == valid + rejected + dropped + pending`` always holds (``pending`` is 0
+    once the consumer has taken everything).
 
     Attributes:
-        received: valid records received.
-        seq_gaps: records missed according to the sequence numbers (one publisher per key);
-            a full channel also drops the oldest, which shows up here.
+        received: samples that arrived on the key (every one, garbage included).
+        valid: records handed to the consumer by ``recv`` / ``try_recv``.
+        rejected: samples that failed decoding or validation (never entered the channel).
+        dropped: valid records the consumer never got: ``overwritten + stale``.
+        pending: valid records waiting in the channel now.
+        overwritten: valid records pushed out of the full channel by a newer valid one.
+        stale: valid records older than the channel's ``max_age_s`` when taken.
+    """
+
+    received: int
+    valid: int
+    rejected: int
+    dropped: int
+    pending: int
+    overwritten: int
+    stale: int
+
+
+class ChannelSubscription(Generic[M]):
+    """Records of one key for a consumer thread that blocks in ``recv``.
+
+    For a service's latency-critical input. Every sample is decoded and validated ON ZENOH'S
+    THREAD (a short callback that never blocks), so garbage is counted as rejected and never
+    enters the channel: a flood of invalid payloads cannot push out a valid record. Valid
+    records go into a ring of the newest ``capacity``; a valid record pushed out by a newer
+    one is counted as overwritten, one older than ``max_age_s`` when taken (by its
+    ``stamp_s`` against ``wall_clock``) as stale. Rejections are also counted per key and
+    reason in the bus's ``DropCounter``; overwritten and stale records in its ``displaced``
+    counter (``DropReporter`` reports all three on ``events/log``). ``stats()`` gives the
+    counts, which add up (``ChannelStats``). One consumer thread only; stop it by closing
+    the ``Bus`` (``recv`` then returns None).
+
+    Attributes:
+        received: valid records handed to the consumer (``stats().valid``).
+        seq_gaps: records missed according to the sequence numbers of those handed over
+            (one publisher per key): transport losses and overwritten records show here.
     """
 
     def __init__(
-        self, raw: zenoh.Subscriber[Any], key: str, msg_type: type[M], drops: DropCounter
+        self,
+        key: str,
+        msg_type: type[M],
+        drops: DropCounter,
+        capacity: int = 1,
+        *,
+        displaced: DropCounter | None = None,
+        max_age_s: float | None = None,
+        wall_clock: Callable[[], float] = time.time,
     ) -> None:
-        self.raw = raw
+        if capacity < 1:
+            raise ValueError("capacity must be >= 1")
+        self.raw: zenoh.Subscriber[Any] | None = None
         self.key = key
         self.msg_type = msg_type
+        self.capacity = capacity
+        self.max_age_s = max_age_s
         self._drops = drops
+        self._displaced = displaced if displaced is not None else DropCounter()
+        self._wall = wall_clock
+        self._cond = threading.Condition()
+        self._ring: collections.deque[M] = collections.deque()
+        self._closed = False
         self._last_seq: dict[str, int] = {}
+        self._arrived = 0
+        self._rejected = 0
+        self._overwritten = 0
+        self._stale = 0
         self.received = 0
         self.seq_gaps = 0
 
-    def recv(self) -> M | None:
-        """The next valid record, waiting as long as it takes; None once the bus is closed."""
-        while True:
-            try:
-                sample = self.raw.recv()
-            except zenoh.ZError:  # the channel is closed: the session was closed
-                return None
-            got = self._accept(sample)
-            if got is not None:
-                return got
+    # -- Zenoh thread ------------------------------------------------------------
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """The Zenoh callback: decode and validate, then into the ring. Never raises."""
+        try:
+            got = _decode_sample(sample, self.key, self.msg_type, self._drops)
+            self.offer(got[1] if got is not None else None)
+        except Exception as exc:  # never into Zenoh's thread
+            _record_internal(self._drops, self.key, exc)
+
+    def offer(self, record: M | None) -> None:
+        """Count one arrived sample: `record` is its valid record, None if it was rejected
+        (already counted by reason in the bus's ``DropCounter``)."""
+        pushed_out = False
+        with self._cond:
+            self._arrived += 1
+            if record is None:
+                self._rejected += 1
+                return
+            if len(self._ring) >= self.capacity:
+                self._ring.popleft()
+                self._overwritten += 1
+                pushed_out = True
+            self._ring.append(record)
+            self._cond.notify()
+        if pushed_out:
+            self._displaced.record(self.key, "overwritten", "a newer valid record came first")
+
+    def close(self) -> None:
+        """End every ``recv`` (what is queued is still taken first). Idempotent."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    # -- the consumer's thread -----------------------------------------------------
+    def _take(self) -> M | None:
+        """The oldest queued record that is not stale (call holding ``_cond``)."""
+        while self._ring:
+            msg = self._ring.popleft()
+            if self.max_age_s is not None and self._wall() - msg.stamp_s > self.max_age_s:
+                self._stale += 1
+                self._displaced.record(self.key, "stale", f"older than {self.max_age_s} s")
+                continue
+            self.seq_gaps += _count_seq(self._last_seq, self.key, msg)
+            self.received += 1
+            return msg
+        return None
+
+    def recv(self, timeout_s: float | None = None) -> M | None:
+        """The next valid record, waiting up to `timeout_s` [s] (None: as long as it
+        takes); None on timeout or once the bus is closed and the channel is empty."""
+        deadline = None if timeout_s is None else time.monotonic() + max(0.0, timeout_s)
+        with self._cond:
+            while True:
+                msg = self._take()
+                if msg is not None or self._closed:
+                    return msg
+                if deadline is None:
+                    self._cond.wait()
+                else:
+                    left = deadline - time.monotonic()
+                    if left <= 0.0:
+                        return None
+                    self._cond.wait(left)
 
     def try_recv(self) -> M | None:
         """The next valid record if one is queued, else None (never waits)."""
-        while True:
-            try:
-                sample = self.raw.try_recv()
-            except zenoh.ZError:
-                return None
-            if sample is None:
-                return None
-            got = self._accept(sample)
-            if got is not None:
-                return got
+        with self._cond:
+            return self._take()
 
-    def _accept(self, sample: zenoh.Sample) -> M | None:
-        got = _decode_sample(sample, self.key, self.msg_type, self._drops)
-        if got is None:
-            return None
-        key, msg = got
-        self.seq_gaps += _count_seq(self._last_seq, key, msg)
-        self.received += 1
-        return msg
+    def stats(self) -> ChannelStats:
+        """The counts now (see ``ChannelStats``; they add up)."""
+        with self._cond:
+            dropped = self._overwritten + self._stale
+            return ChannelStats(self._arrived, self.received, self._rejected, dropped,
+                                len(self._ring), self._overwritten, self._stale)
 
     @property
     def dropped(self) -> int:
-        """Invalid payloads dropped on this subscription's key."""
+        """Invalid payloads dropped on this subscription's key (the bus's count)."""
         return self._drops.count(self.key)
+
+    def undeclare(self) -> None:
+        """Stop receiving and end ``recv`` (the session stays open)."""
+        self.close()
+        if self.raw is not None:
+            self.raw.undeclare()
+            self.raw = None
 
 
 # --------------------------------------------------------------------------- the bus
@@ -635,6 +800,10 @@ class Bus:
         self.keys = Keys(settings.car)
         self.drops = drops or DropCounter()
         self.faults = faults or FaultCounter()
+        #: valid records dropped before their consumer took them: (key, reason), reason
+        #: "overwritten" / "stale" (a channel) or "queue_full" (a subscription's queue)
+        self.displaced = DropCounter()
+        self._channels: list[ChannelSubscription[Any]] = []
         self._lock = threading.Lock()
         self._closed = False
         self._tokens: list[zenoh.LivelinessToken] = []
@@ -671,12 +840,15 @@ class Bus:
         try:
             self.drops.flush()
             self.faults.flush()
+            self.displaced.flush()
         except Exception:  # pragma: no cover
             log.exception("flushing drop summaries failed")
         try:
             self.session.close()
         except Exception:
             log.exception("closing the Zenoh session failed")
+        for chan in self._channels:  # their consumers' recv returns None
+            chan.close()
 
     # -- publish / subscribe ----------------------------------------------------------
     def publisher(
@@ -730,21 +902,29 @@ class Bus:
                 quickly and never block (exceptions are caught and counted as
                 "callback_error"). Prefer the latest slot or the queue.
             queue_size: > 0 also keeps the last `queue_size` records in a FIFO that
-                drops the oldest (``get`` / ``drain``).
+                drops the oldest (``get`` / ``drain``), counted in ``displaced`` as
+                "queue_full" (and so reported by ``DropReporter``).
         """
-        sub: Subscription[M] = Subscription(key, msg_type, self.drops, callback, queue_size)
+        sub: Subscription[M] = Subscription(
+            key, msg_type, self.drops, callback, queue_size, displaced=self.displaced
+        )
         sub.raw = self.session.declare_subscriber(key, sub.on_sample)
         return sub
 
     def subscribe_channel(
-        self, key: str, msg_type: type[M], *, capacity: int = 1
+        self, key: str, msg_type: type[M], *, capacity: int = 1, max_age_s: float | None = None
     ) -> ChannelSubscription[M]:
         """Subscribe to `key` for a consumer thread that blocks in ``recv`` (see
-        ``ChannelSubscription``); the channel keeps the newest `capacity` samples."""
-        if capacity < 1:
-            raise ValueError("capacity must be >= 1")
-        raw = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
-        return ChannelSubscription(raw, key, msg_type, self.drops)
+        ``ChannelSubscription``): samples are validated on arrival, the channel keeps the
+        newest `capacity` valid records and (if `max_age_s` [s] is given) drops the ones
+        older than that when taken; every loss is counted (``stats()``)."""
+        chan: ChannelSubscription[M] = ChannelSubscription(
+            key, msg_type, self.drops, capacity, displaced=self.displaced, max_age_s=max_age_s
+        )
+        chan.raw = self.session.declare_subscriber(key, chan.on_sample)
+        with self._lock:
+            self._channels.append(chan)
+        return chan
 
     def put_raw(self, key: str, payload: bytes) -> None:
         """Publish raw bytes on `key`, bypassing the contract (tests and tools only)."""
@@ -816,8 +996,11 @@ class DropReporter:
     that grew, one ``LogEvent``: a warning such as ``rejected 3 messages (total 7):
     racestack/car0/state not_msgpack x3`` for invalid payloads received, an error such as
     ``own faults: 2 (total 2), not published: racestack/car0/sim/truth out_of_range x2``
-    for records of its own that failed validation (and other faults it recovered from).
-    This makes the counts visible to telemetry, tests and operators.
+    for records of its own that failed validation (and other faults it recovered from), and
+    a warning such as ``dropped 5 valid messages (total 9): racestack/car0/vehicle/pose
+    overwritten x5`` for valid records a channel subscription never handed to its consumer
+    (``Bus.displaced``: pushed out by a newer one, or stale). This makes the counts visible
+    to telemetry, tests and operators.
     """
 
     def __init__(
@@ -843,6 +1026,7 @@ class DropReporter:
         self._event = LogEvent
         self._last: dict[tuple[str, str], int] = {}
         self._last_faults: dict[tuple[str, str], int] = {}
+        self._last_displaced: dict[tuple[str, str], int] = {}
         self._next = 0.0
         self.reports = 0  #: LogEvents published (both kinds)
 
@@ -881,5 +1065,13 @@ class DropReporter:
                 LogLevelName.ERROR,
                 f"own faults: {n} (total {sum(faults.values())}), not published: {parts}",
             )
+            published = True
+        displaced = self._bus.displaced.snapshot() if hasattr(self._bus, "displaced") else {}
+        n, parts = self._growth(displaced, self._last_displaced)
+        if n:
+            self._last_displaced = displaced
+            total = sum(displaced.values())
+            self._publish(LogLevelName.WARNING,
+                          f"dropped {n} valid messages (total {total}): {parts}")
             published = True
         return published

@@ -28,8 +28,9 @@ What the base owns:
   ``bus.drops`` (invalid payloads received) and ``bus.faults`` (records of its own that failed
   validation, and faults it recovered from) on ``events/log``;
 * the watchdog: ``serve(stop)`` (the main thread, overridable) calls ``poll()`` every
-  ``period_s``: the reports, the service's own ``tick()`` (e.g. the planner's stale-state
-  brake) and a check of its ``Worker`` threads (``start_worker``), whose crash ends it;
+  ``period_s``: the reports, the service's own ``tick()`` (its periodic checks; the
+  planner's stale-state brake is a deadline worker instead) and a check of its ``Worker``
+  threads (``start_worker``), whose crash ends it;
 * the clocks: ``clock`` (monotonic [s]: periods, rate limits) and ``wall_clock`` ([s]: message
   stamps) are constructor arguments, so a test drives time by hand.
 
@@ -363,7 +364,7 @@ class Service:
     def main(cls, argv: Sequence[str] | None = None) -> int:
         """``python -m services.<NAME>``: parse, load the configuration, ``body``; exit code."""
         doc = sys.modules[cls.__module__].__doc__ or cls.NAME
-        return run_service(cls.NAME, argv, cls.body, cls.add_args, description=doc.splitlines()[0])
+        return run_service(cls.NAME, argv, cls.body, cls.add_args, description=doc)
 
 
 # --------------------------------------------------------------------------- the contract

@@ -4,16 +4,19 @@ Event-driven: a worker thread blocks on ``state`` (``Bus.subscribe_channel``) an
 new ``State`` at once (low pose-to-command latency), at most
 once per planner period (a state arriving sooner than ``MIN_PERIOD_FRACTION * dt_s`` after
 the last solve is skipped, the next one is used). A state older than ``stale_state_s``
-(by its ``source_stamp_s`` against this machine's wall clock) or none at all for that long
-gives a braking command (speed 0), never a guess: the main thread checks every period.
-Stamps are wall-clock seconds.
+(by its ``source_stamp_s`` against this machine's wall clock) gives a braking command
+(speed 0) at once, never a guess. No state at all for ``stale_state_s`` is a DEADLINE, not
+a poll: each state re-arms a ``BrakeDeadline`` and a second worker waits on a condition
+with the time left as its timeout, so the brake goes out ``stale_state_s`` after the last
+state (plus the wake-up's scheduling jitter; before issue 15 a 50 ms check period added up to
+50 ms), and again every planner period while no state comes. Stamps are wall-clock seconds.
 
 Order of one tick, shortest pose-to-command path first: solve, publish ``cmd/drive`` (from
 inside ``Planner.step``, before its result record is assembled), pause
 ``command_yield_s`` so the command leaves, then publish ``planner/plan`` and prepare the
 next tick's warm start (``Planner.prepare``). The shell is a ``shared.service.Service``: its
-ports are declared in ``PlannerShell.PORTS``; the base's watchdog calls ``tick`` (the
-stale-state brake) every period.
+ports are declared in ``PlannerShell.PORTS``; the base's watchdog (main thread) publishes the
+drop reports and watches both workers.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import argparse
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -61,6 +64,37 @@ def plan_message(res: SolveResult, stamp_s: float, source_stamp_s: float) -> Pla
     )
 
 
+class BrakeDeadline:
+    """When the planner must brake for want of a state: a deadline, as data (no clock).
+
+    ``arm(now)`` at every state sets it to ``now + stale_s``; ``fire(now)`` once it is due
+    says "brake now" and sets the next one ``repeat_s`` later (the brake is repeated while
+    no state comes). Times are the caller's monotonic clock [s].
+    """
+
+    def __init__(self, stale_s: float, repeat_s: float, now: float) -> None:
+        self.stale_s = stale_s
+        self.repeat_s = repeat_s
+        self.due_s = now + stale_s  #: when the next brake is due [s]
+        self.armed_s = now  #: when the last state (or the start) armed it [s]
+
+    def arm(self, now: float) -> None:
+        """A state arrived at `now` [s]: the brake is due ``stale_s`` later."""
+        self.armed_s = now
+        self.due_s = now + self.stale_s
+
+    def remaining(self, now: float) -> float:
+        """Seconds until the brake is due (<= 0: due)."""
+        return self.due_s - now
+
+    def fire(self, now: float) -> bool:
+        """True (and the next brake ``repeat_s`` later) if the brake is due at `now`."""
+        if now < self.due_s:
+            return False
+        self.due_s = now + self.repeat_s
+        return True
+
+
 class PlannerShell(Service):
     """Turns states into commands and plans; brakes on stale, invalid or missing state."""
 
@@ -72,8 +106,15 @@ class PlannerShell(Service):
         publishes(EVENTS_LOG, LogEvent),
     )
 
-    def __init__(self, planner: PlannerLike, bus: Bus) -> None:
-        super().__init__(bus, period_s=planner.settings.dt_s)
+    def __init__(
+        self,
+        planner: PlannerLike,
+        bus: Bus,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        super().__init__(bus, period_s=planner.settings.dt_s, clock=clock, wall_clock=wall_clock)
         self.planner = planner
         self.period = planner.settings.dt_s
         self.stale_s = planner.settings.stale_state_s
@@ -83,17 +124,23 @@ class PlannerShell(Service):
         self.states = self.subscribe_channel(STATE)
         self.last_solve = 0.0
         self.last_state = self.clock()
+        self.last_state_wall_s = self.wall_clock()  #: wall time of the last state's arrival [s]
+        self.deadline = BrakeDeadline(self.stale_s, self.period, self.last_state)
+        self._deadline_cond = threading.Condition()
+        self._closing = False
+        #: (last state's arrival, brake's stamp) [s, wall clock] of each deadline brake
+        self.deadline_brakes: list[tuple[float, float]] = []
         self.braking = True
         self.recovering = False
         self.steering = 0.0
         self.cmd_stamp = 0.0  #: wall-clock stamp of the last command published [s]
-        self._lock = threading.Lock()  # the state worker and the main thread's watchdog
+        self._lock = threading.Lock()  # the state worker and the deadline worker
 
-    def brake(self) -> None:
-        """Command speed 0, steering held."""
-        self.cmd_pub.put(
-            DriveCmd(stamp_s=self.wall_clock(), speed_mps=0.0, steering_rad=self.steering)
-        )
+    def brake(self) -> float:
+        """Command speed 0, steering held; returns the command's stamp [s]."""
+        stamp = self.wall_clock()
+        self.cmd_pub.put(DriveCmd(stamp_s=stamp, speed_mps=0.0, steering_rad=self.steering))
+        return stamp
 
     def publish_command(self, cmd: DriveCommand) -> None:
         """Publish the command of this tick (the planner calls it before assembling its
@@ -107,6 +154,9 @@ class PlannerShell(Service):
     def on_state(self, st: State) -> None:
         """Plan from one state: stale or invalid -> brake; else solve (rate-limited)."""
         self.last_state = self.clock()
+        self.last_state_wall_s = self.wall_clock()
+        with self._deadline_cond:
+            self.deadline.arm(self.last_state)  # the brake deadline moves on
         age = self.wall_clock() - st.source_stamp_s
         if age > self.stale_s or not st.valid:
             if not self.braking:
@@ -145,26 +195,55 @@ class PlannerShell(Service):
             with self._lock:
                 self.on_state(st)
 
+    def deadline_step(self, wait: Callable[[float], object] | None = None) -> bool:
+        """One round of the deadline worker: wait until the brake is due (``wait(seconds)``,
+        called holding the deadline's condition; default: wait on that condition, which
+        ``close`` notifies; a state that re-armed the deadline meanwhile only makes the next
+        round wait again), or brake if it is due; True when it braked."""
+        with self._deadline_cond:
+            left = self.deadline.remaining(self.clock())
+            if left > 0.0:
+                (wait or self._deadline_cond.wait)(left)
+                return False
+        with self._lock:  # not during a solve (a state came then, so it is not due)
+            with self._deadline_cond:
+                now = self.clock()
+                if not self.deadline.fire(now):
+                    return False  # a state re-armed it meanwhile
+                last_wall = self.last_state_wall_s
+            if not self.braking:
+                self.say(LogLevelName.WARNING,
+                         f"no state for {(now - self.last_state) * 1e3:.0f} ms "
+                         f"(limit {self.stale_s * 1e3:.0f} ms): braking")
+                self.braking = True
+                self.planner.reset()
+            stamp = self.brake()
+            if len(self.deadline_brakes) < 10_000:
+                self.deadline_brakes.append((last_wall, stamp))
+        return True
+
+    def watch_deadline(self) -> None:
+        """The deadline worker: brake whenever the deadline passes, until ``close``."""
+        while not self._closing:
+            self.deadline_step()
+
     def serve(self, stop: threading.Event) -> int:
-        """Plan from every state on a worker; this thread is the watchdog (``tick``)."""
+        """Plan from every state on a worker, brake on the deadline on another; this thread
+        is the base's watchdog (reports, worker crashes)."""
         self.start_worker(
             "planner-states", lambda: self.consume(self.states), stop, fault_key=self.plan_pub.key
+        )
+        self.start_worker(
+            "planner-deadline", self.watch_deadline, stop, fault_key=self.cmd_pub.key
         )
         log.info("ready; waiting for %s", self.states.key)
         return super().serve(stop)
 
-    def tick(self) -> None:
-        """The watchdog (every period): brake once no state came for stale_s."""
-        with self._lock:
-            self._check_silence()
-
-    def _check_silence(self) -> None:
-        if self.clock() - self.last_state > self.stale_s:
-            if not self.braking:
-                self.say(LogLevelName.WARNING, f"no state for {self.stale_s * 1e3:.0f} ms: braking")
-                self.braking = True
-                self.planner.reset()
-            self.brake()
+    def close(self) -> None:
+        """End the deadline worker (the closed bus ends the state worker)."""
+        with self._deadline_cond:
+            self._closing = True
+            self._deadline_cond.notify_all()
 
 
 def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:

@@ -8,11 +8,15 @@
 - ``service``: the Zenoh shell (``python -m services.telemetry``).
 - ``report``: reads a recording back into the lap table and figures of
   ``shared.evaluation``.
+- ``rrd_files``: the files of a recording (segments ``telemetry.0000.rrd``, ... or an old
+  single ``telemetry.rrd``) and reading one by streaming, also when cut off by a crash.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+
+from services.telemetry.rrd_files import find_segments
 
 
 def report_main(argv: Sequence[str] | None = None) -> int:
@@ -23,4 +27,4 @@ def report_main(argv: Sequence[str] | None = None) -> int:
     return int(main(argv))
 
 
-__all__ = ["report_main"]
+__all__ = ["find_segments", "report_main"]

@@ -246,9 +246,29 @@ class Recorder:
             EVENTS_LOG: self._log_event,
             SIM_CONTROL: self._sim_control,
         }
-        rec.set_log_time_enabled(False)
-        rec.set_log_tick_enabled(False)
+        self._static: tuple[Track | None, CurvatureProfile | None,
+                            Mapping[str, str | float | int] | None] | None = None
+        self._prepare_stream()
+
+    def _prepare_stream(self) -> None:
+        """The stream's own timelines off, the drawing styles as static data."""
+        self.rec.set_log_time_enabled(False)
+        self.rec.set_log_tick_enabled(False)
         self._log_styles()
+
+    def rebind(self, rec: rr.RecordingStream) -> None:
+        """Go on logging into `rec` (the same stream, now writing the next segment, or
+        another one): the buffered series are sent first; then the styles and the static
+        data (track, run information) are logged again, so every segment holds them."""
+        self.scalars.flush()
+        self.rec = rec
+        self.scalars = ScalarBatcher(rec)
+        self._timeline = None
+        self._path_entities = set()
+        self._plan_info = None
+        self._prepare_stream()
+        if self._static is not None:
+            self.log_static(*self._static)
 
     def _log_styles(self) -> None:
         """Colours, radii and draw order of the drawings, logged once as static data (each
@@ -287,6 +307,7 @@ class Recorder:
         `meta` (run information) as static data, plus the series styles."""
         rec = self.rec
         self._profile = profile
+        self._static = (track, profile, meta)
         if track is not None:
             for name, pts, color, width in (
                 ("centerline", track.xy, colors.CENTRELINE, 0.01),

@@ -1,12 +1,31 @@
-"""One telemetry run on disk: its folder, its ``.rrd`` recording, the live stream, the stats.
+"""One telemetry run on disk: its folder, its ``.rrd`` segments, the live stream, the stats.
 
 ``start_recording`` opens what the telemetry service records into (before its bus opens, so
 a port that cannot be served fails at once with a configuration error): the run folder
-(``<[telemetry] runs_dir>/<YYYYmmdd-HHMMSS>/`` unless given; never overwritten:
-``telemetry-2.rrd``...), the recording stream with the default layout (also saved as
-``telemetry.rbl``), the optional live gRPC stream and viewer, and the ``Recorder`` with the
-track drawn. ``RunRecording.finish`` logs what is still queued and writes
-``telemetry_stats.json``; ``RunRecording.close`` flushes and disconnects the stream.
+(``<[telemetry] runs_dir>/<YYYYmmdd-HHMMSS>/`` unless given), the first segment
+``telemetry.0000.rrd`` with the default layout (also saved as ``telemetry.rbl``; a second
+run in the same folder is ``telemetry-2.0000.rrd``..., never overwritten), the optional live
+gRPC stream and viewer, and the ``Recorder`` with the track drawn.
+
+Segments: ``RunRecording.rotate`` (every ``[telemetry] segment_interval_s``) flushes the open
+segment and replaces the stream's file sink with one writing ``<stem>.<n+1>.rrd`` (the
+replaced sink writes its footer: the closed file then passes ``rerun rrd verify``); the
+recorder logs the static data again, so each segment holds the track and the run
+information; all are one recording id (a viewer opening several shows one run;
+``racestack report`` reads them as one). A SIGKILL leaves the closed segments intact and the
+open one without a footer (readable by streaming up to its last flush).
+
+Memory (measured with rerun-sdk 0.41, issue 15): a file sink keeps an index of every chunk
+until its footer is written, so one file grows the process with the race; closing segments
+bounds that. But a NEW ``RecordingStream`` per segment leaks about 0.8 MB each (more with
+data), and every blueprint sent (``default_blueprint=`` or ``send_blueprint``) about 2.3 MB:
+so the run keeps ONE stream, swaps only its file sink, and sends the default layout once,
+into the first segment (and ``telemetry.rbl`` beside it, for any segment alone:
+``rerun telemetry.0003.rrd telemetry.rbl``). The live stream is a separate stream (gRPC
+only, at most ``serve_memory_limit_mb`` kept) that lives for the whole run.
+
+``RunRecording.finish`` logs what is still queued and writes ``<stem>_stats.json``;
+``RunRecording.close`` flushes and disconnects the open segment and the live stream.
 """
 
 from __future__ import annotations
@@ -20,8 +39,9 @@ import subprocess
 import sys
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import rerun as rr
 
@@ -35,8 +55,10 @@ from shared.net import free_loopback_port
 from shared.track import load_track
 
 log = logging.getLogger(__name__)
-#: File name of the recording inside the run folder.
-RRD_NAME = "telemetry.rrd"
+#: Stem of the recording's segments inside the run folder (``telemetry.0000.rrd``, ...).
+RRD_STEM = "telemetry"
+#: File name of a single-file recording (runs recorded before segments; still read).
+RRD_NAME = f"{RRD_STEM}.rrd"
 #: Longest wait for the final flush at exit [s].
 CLOSE_TIMEOUT_S = 5.0
 #: Port of the live stream with ``--viewer`` on a non-loopback address and no port given.
@@ -57,14 +79,19 @@ def new_run_dir(runs_dir: str | Path, now: float | None = None) -> Path:
     raise FileExistsError(f"no free run folder for {stamp} in {base}")
 
 
-def free_recording_path(run_dir: Path) -> Path:
-    """``run_dir/telemetry.rrd``, or ``telemetry-<n>.rrd`` if that exists (never overwrite)."""
-    path = run_dir / RRD_NAME
-    n = 2
-    while path.exists():
-        path = run_dir / f"telemetry-{n}.rrd"
+def segment_path(run_dir: Path, stem: str, index: int) -> Path:
+    """``run_dir/<stem>.<index:04d>.rrd``: segment `index` (0, 1, ...) of a recording."""
+    return run_dir / f"{stem}.{index:04d}.rrd"
+
+
+def free_recording_stem(run_dir: Path) -> str:
+    """``telemetry``, or ``telemetry-<n>`` if a recording of that stem (single file or
+    segments) is already in `run_dir` (never overwrite)."""
+    stem, n = RRD_STEM, 2
+    while (run_dir / f"{stem}.rrd").exists() or segment_path(run_dir, stem, 0).exists():
+        stem = f"{RRD_STEM}-{n}"
         n += 1
-    return path
+    return stem
 
 
 def connect_url(host: str, port: int) -> str:
@@ -116,33 +143,99 @@ def spawn_viewer(url: str) -> subprocess.Popen[bytes] | None:
     )
 
 
-def open_recording(
-    settings: TelemetrySettings, path: Path, recording_id: str, serve_port: int | None
-) -> rr.RecordingStream:
-    """A recording stream writing to `path` (and serving on `serve_port` if given)."""
+def open_segment(settings: TelemetrySettings, path: Path, recording_id: str) -> rr.RecordingStream:
+    """A recording stream writing its first segment file, `path`, with the default layout."""
     rec = rr.RecordingStream(settings.app_id, recording_id=recording_id)
-    sinks: list[rr.FileSink | rr.GrpcServerSink] = [rr.FileSink(str(path))]
-    if serve_port is not None:
-        sinks.append(rr.GrpcServerSink(bind_ip=settings.serve_bind_ip, port=serve_port))
-    rec.set_sinks(*sinks, default_blueprint=default_blueprint())
+    rec.set_sinks(rr.FileSink(str(path)), default_blueprint=default_blueprint())
     return rec
+
+
+def switch_segment(rec: rr.RecordingStream, path: Path) -> None:
+    """Flush `rec` (up to ``CLOSE_TIMEOUT_S``) and make it write to `path` instead: the
+    replaced file sink writes its footer (no blueprint is sent again: each one leaks)."""
+    try:
+        rec.flush(timeout_sec=CLOSE_TIMEOUT_S)
+    except Exception as exc:
+        log.warning("flushing before a new segment failed: %s", exc)
+    rec.set_sinks(rr.FileSink(str(path)))
+
+
+def open_live(settings: TelemetrySettings, recording_id: str, port: int) -> rr.RecordingStream:
+    """A recording stream serving the run live on ``serve_bind_ip``:`port` (gRPC), keeping
+    at most ``serve_memory_limit_mb`` for viewers that connect late."""
+    rec = rr.RecordingStream(settings.app_id, recording_id=recording_id)
+    rec.set_sinks(
+        rr.GrpcServerSink(bind_ip=settings.serve_bind_ip, port=port,
+                          server_memory_limit=f"{settings.serve_memory_limit_mb}MiB"),
+        default_blueprint=default_blueprint(),
+    )
+    return rec
+
+
+class StreamTee:
+    """Forwards every call (``log``, ``send_columns``, ``set_time``, ...) to several
+    recording streams: the open segment and the live stream get the same data."""
+
+    def __init__(self, *streams: rr.RecordingStream) -> None:
+        self.streams = streams
+
+    def __getattr__(self, name: str) -> Any:
+        methods = [getattr(s, name) for s in self.streams]
+
+        def call(*args: Any, **kwargs: Any) -> None:
+            for method in methods:
+                method(*args, **kwargs)
+
+        return call
 
 
 @dataclass
 class RunRecording:
-    """An open run: the stream, its recorder, where it is written, when it started.
+    """An open run: its open segment, its recorder, where it is written, when it started.
 
     Attributes:
-        rec: the Rerun recording stream.
-        recorder: the ``Recorder`` logging into it.
-        rrd: the recording file.
+        rec: the stream of the open segment.
+        recorder: the ``Recorder`` logging into it (and into ``live``).
+        run_dir: the run folder.
+        stem: the segments' file stem (``telemetry``; ``<stem>.<n>.rrd``).
+        recording_id: the Rerun recording id shared by every segment.
+        settings: the ``[telemetry]`` settings.
         started_wall_s: wall-clock start [s].
+        live: the live gRPC stream (None: file only).
+        segments: every segment opened so far, the open one last.
     """
 
     rec: rr.RecordingStream
     recorder: Recorder
-    rrd: Path
+    run_dir: Path
+    stem: str
+    recording_id: str
+    settings: TelemetrySettings
     started_wall_s: float
+    live: rr.RecordingStream | None = None
+    segments: list[Path] = field(default_factory=list)
+
+    @property
+    def rrd(self) -> Path:
+        """The open segment's file."""
+        return self.segments[-1]
+
+    def flush(self) -> None:
+        """Start writing out what was logged (does not wait)."""
+        self.rec.flush(timeout_sec=0.0)
+        if self.live is not None:
+            self.live.flush(timeout_sec=0.0)
+
+    def rotate(self) -> Path:
+        """Close the open segment (series sent, flushed up to ``CLOSE_TIMEOUT_S``, its sink
+        replaced: its footer is written) and go on in the next; returns the closed file."""
+        closed = self.rrd
+        self.recorder.flush()
+        nxt = segment_path(self.run_dir, self.stem, len(self.segments))
+        switch_segment(self.rec, nxt)
+        self.segments.append(nxt)
+        self.recorder.rebind(self.recorder.rec)  # the static data again, into the new file
+        return closed
 
     def finish(
         self,
@@ -172,18 +265,28 @@ class RunRecording:
                        f"{sum(inbox.dropped().values())} dropped by the queue, "
                        f"{sum(rejected.values())} rejected")
         recorder.close()
-        self.rrd.with_name(f"{self.rrd.stem}_stats.json").write_text(
+        stats["segments"] = [p.name for p in self.segments]
+        (self.run_dir / f"{self.stem}_stats.json").write_text(
             json.dumps(stats, indent=2) + "\n", encoding="utf-8")
         log.info("closed %s: %s", self.rrd, json.dumps({k: stats[k] for k in (
             "received", "dropped_by_queue", "rejected", "seq_gaps")}))
 
     def close(self) -> None:
-        """Flush the stream (up to ``CLOSE_TIMEOUT_S``) and disconnect its sinks."""
-        try:
-            self.rec.flush(timeout_sec=CLOSE_TIMEOUT_S)
-        except Exception as exc:
-            log.warning("final flush failed: %s", exc)
-        self.rec.disconnect()
+        """Flush the open segment and the live stream (up to ``CLOSE_TIMEOUT_S`` each) and
+        disconnect them (the segment gets its footer)."""
+        _close_stream(self.rec, self.rrd)
+        if self.live is not None:
+            _close_stream(self.live, None)
+
+
+def _close_stream(rec: rr.RecordingStream, path: Path | None) -> None:
+    """Flush `rec` (up to ``CLOSE_TIMEOUT_S``) and disconnect its sinks (a file sink then
+    writes its footer); a failed flush is logged, never raised."""
+    try:
+        rec.flush(timeout_sec=CLOSE_TIMEOUT_S)
+    except Exception as exc:
+        log.warning("flushing %s failed: %s", path or "the live stream", exc)
+    rec.disconnect()
 
 
 def start_recording(
@@ -220,20 +323,24 @@ def start_recording(
                         "network can read it", tset.serve_bind_ip)
     run_dir = Path(out) if out else new_run_dir(tset.runs_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    rrd = free_recording_path(run_dir)
+    stem = free_recording_stem(run_dir)
+    rrd = segment_path(run_dir, stem, 0)
     started = time.time()
-    rec = open_recording(tset, rrd, f"{cfg.bus.car}-{run_dir.name}-{rrd.stem}", serve_port)
+    recording_id = f"{cfg.bus.car}-{run_dir.name}-{stem}"
+    rec = open_segment(tset, rrd, recording_id)
+    live = open_live(tset, recording_id, serve_port) if serve_port is not None else None
     try:
         save_blueprint(run_dir / "telemetry.rbl", tset.app_id)
     except Exception as exc:  # the layout is also inside the recording
         log.warning("could not write telemetry.rbl: %s", exc)
-    print(f"telemetry: recording to {rrd}", flush=True)
+    print(f"telemetry: recording to {rrd} (a new segment every {tset.segment_interval_s:g} s)",
+          flush=True)
     if serve_port is not None:
         url = connect_url(tset.serve_bind_ip, serve_port)
         print(f"telemetry: watch live with: rerun --connect {url}", flush=True)
         if want_viewer:
             spawn_viewer(url)
-    recorder = Recorder(rec, tset)
+    recorder = Recorder(rec if live is None else StreamTee(rec, live), tset)
     recorder.log_static(track, profile, {
         "car": cfg.bus.car,
         "started_wall_s": started,
@@ -241,4 +348,4 @@ def start_recording(
         "track_source": cfg.track.source,
         "host": socket.gethostname(),
     })
-    return RunRecording(rec, recorder, rrd, started)
+    return RunRecording(rec, recorder, run_dir, stem, recording_id, tset, started, live, [rrd])

@@ -14,10 +14,8 @@ the state and the plan (or a projection on the track).
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,9 +24,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import rerun as rr
 
 from services.telemetry.recorder import SIM_TIME, WALL_TIME
+from services.telemetry.rrd_files import find_segments, read_store
 from shared.config import ConfigError, load_config
 from shared.curvature import CurvatureProfile, track_profile
 from shared.evaluation import (
@@ -40,6 +38,8 @@ from shared.evaluation import (
     write_figures,
     write_results,
 )
+from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
+from shared.service_shell import OneLineArgumentParser, plain_help
 from shared.track import Track, TrackError, load_track
 
 _ROW_ID = "rerun.controls.RowId"
@@ -54,16 +54,18 @@ class RecordingData:
     """What the report needs from a recording.
 
     Attributes:
-        path: the ``.rrd`` file.
+        path: the ``.rrd`` file (the first segment of a segmented recording).
+        segments: every file read, in order (one for a single-file recording).
         series: entity -> (t [s], values), sorted by t (scalar series).
         rows: entity -> rows (dicts of field -> value, plus ``t_s`` [s]) of ``ROW_ENTITIES``
             (text logs under ``TextLog:text`` / ``TextLog:level``).
         static: entity -> field -> value of the static entities (line strips as arrays).
         timelines: the message timelines found (``sim_time`` and/or ``wall_time``).
-        complete: False when the file has no footer (the recorder did not close it).
+        complete: False when a file has no footer (the recorder did not close it).
     """
 
     path: Path
+    segments: list[Path] = field(default_factory=list)
     series: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     rows: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
     static: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -72,19 +74,10 @@ class RecordingData:
 
 
 def find_recording(path: str | Path) -> Path:
-    """The ``.rrd`` of `path`: the file itself, or ``telemetry.rrd`` (else the newest
-    ``*.rrd``) of a run folder. FileNotFoundError if there is none."""
-    p = Path(path)
-    if p.is_file():
-        return p
-    if p.is_dir():
-        if (p / "telemetry.rrd").is_file():
-            return p / "telemetry.rrd"
-        found = sorted(p.glob("*.rrd"), key=lambda f: f.stat().st_mtime)
-        if found:
-            return found[-1]
-        raise FileNotFoundError(f"{p}: no .rrd recording in this folder")
-    raise FileNotFoundError(f"{p}: no such file or folder")
+    """The first ``.rrd`` of the recording `path` names (``rrd_files.find_segments``: a
+    file, a run folder, or the ``<stem>.rrd`` of a segmented run). FileNotFoundError if
+    there is none."""
+    return find_segments(path)[0]
 
 
 def _cell(v: Any) -> Any:
@@ -97,19 +90,38 @@ def _cell(v: Any) -> Any:
 
 
 def read_recording(path: str | Path) -> RecordingData:
-    """Read the scalar series, the event rows and the static data of a recording.
+    """Read the scalar series, the event rows and the static data of a recording: every
+    segment of a segmented run, in order, as one recording.
 
-    Reads with ``rr.chunk.RrdReader`` (streams: a recording cut short by a crash reads up
-    to its last complete chunk).
+    Reads with ``rr.chunk.RrdReader`` (streams: a segment cut short by a crash reads up
+    to its last complete chunk, ``rrd_files.read_store``).
     """
-    path = find_recording(path)
-    data = RecordingData(path=path)
+    segments = find_segments(path)
+    data = RecordingData(path=segments[0], segments=segments)
     series: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
     rows: dict[str, list[tuple[float, dict[str, Any]]]] = {}
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        store = rr.chunk.RrdReader(str(path)).stream().collect()
-    data.complete = not any("no footer" in str(w.message) for w in caught)
+    for segment in segments:
+        store, complete = read_store(segment)
+        data.complete = data.complete and complete
+        _read_chunks(store, data, series, rows)
+    for entity, (ts, vs) in series.items():
+        t = np.concatenate(ts)
+        v = np.concatenate(vs)
+        order = np.argsort(t, kind="stable")
+        data.series[entity] = (t[order], v[order])
+    for entity, items in rows.items():
+        items.sort(key=lambda it: it[0])
+        data.rows[entity] = [{**row, "t_s": t} for t, row in items]
+    return data
+
+
+def _read_chunks(
+    store: Any,
+    data: RecordingData,
+    series: dict[str, tuple[list[np.ndarray], list[np.ndarray]]],
+    rows: dict[str, list[tuple[float, dict[str, Any]]]],
+) -> None:
+    """Add the chunks of one file's `store` to `data` (static), `series` and `rows`."""
     for chunk in store.stream():
         entity = chunk.entity_path.lstrip("/")
         rb = chunk.to_record_batch()
@@ -144,15 +156,6 @@ def read_recording(path: str | Path) -> RecordingData:
                 row = {n: _cell(cols[n][i]) for n in fields if cols[n][i] is not None}
                 if row:
                     out.append((float(t[i]), row))
-    for entity, (ts, vs) in series.items():
-        t = np.concatenate(ts)
-        v = np.concatenate(vs)
-        order = np.argsort(t, kind="stable")
-        data.series[entity] = (t[order], v[order])
-    for entity, items in rows.items():
-        items.sort(key=lambda it: it[0])
-        data.rows[entity] = [{**row, "t_s": t} for t, row in items]
-    return data
 
 
 def _strip(data: RecordingData, entity: str) -> np.ndarray | None:
@@ -300,7 +303,7 @@ def build_report(
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``racestack report RUN.rrd|RUN_DIR [--out DIR] [--track SPEC] [--config FILE]``."""
-    ap = argparse.ArgumentParser(prog="racestack report", description=__doc__.splitlines()[0])
+    ap = OneLineArgumentParser(prog="racestack report", description=plain_help(__doc__))
     ap.add_argument("recording", help="a telemetry .rrd file or its run folder")
     ap.add_argument("--out", metavar="DIR",
                     help="where results.json and the figures go (default: <run>/report)")
@@ -309,13 +312,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--config", help="TOML configuration (curvature settings of Fig. 4/5)")
     ap.add_argument("--no-figures", action="store_true", help="print the table only")
     args = ap.parse_args(argv)
+    created: list[Path] = []
+
+    def unusable(out: Path) -> bool:  # before the table: an error is then the only output
+        created.extend(missing_dirs(out))
+        problem = writable_dir_problem(out)
+        if problem:
+            remove_empty_dirs(created)
+            print(f"racestack report: error: {problem}; give --out a folder you can write",
+                  file=sys.stderr)
+        return problem is not None
+
+    if args.out and unusable(Path(args.out)):  # checked before the recording is read
+        return 2
     try:
         doc, run, track, profile = build_report(args.recording, args.track, args.config)
     except (FileNotFoundError, ConfigError, TrackError) as exc:
+        remove_empty_dirs(created)
         print(f"racestack report: error: {exc}", file=sys.stderr)
+        return 2
+    except (OSError, RuntimeError, ValueError) as exc:  # e.g. not an .rrd (rerun's reader)
+        remove_empty_dirs(created)
+        print(f"racestack report: error: {args.recording}: not a readable telemetry "
+              f"recording ({' '.join(str(exc).split())})", file=sys.stderr)
         return 2
     rrd = Path(doc["meta"]["recording"])
     out = Path(args.out) if args.out else rrd.parent / "report"
+    if not args.out and unusable(out):
+        return 2
     cut = "" if doc["meta"]["complete"] else ", cut short: no footer"
     print(f"recording {rrd} ({run.name}, {len(run.trace.t_s)} planner ticks, "
           f"{len(run.solve_times_ms)} solves{cut})")

@@ -2,10 +2,11 @@
 
 ``python -m services.telemetry --config FILE [--out DIR] [--serve PORT] [--viewer]``
 
-* Records to ``DIR/telemetry.rrd`` (default ``<[telemetry] runs_dir>/<YYYYmmdd-HHMMSS>/``;
-  never overwritten: ``telemetry-2.rrd``...), with the default layout inside (also saved as
-  ``telemetry.rbl``) and, at exit, the counters in ``telemetry_stats.json``
-  (``services.telemetry.recording``).
+* Records to ``DIR/telemetry.0000.rrd``, ``telemetry.0001.rrd``, ... (default
+  ``<[telemetry] runs_dir>/<YYYYmmdd-HHMMSS>/``; never overwritten: ``telemetry-2.0000.rrd``
+  ...), one segment per ``segment_interval_s``, each closed with its footer and holding the
+  default layout (also saved as ``telemetry.rbl``); at exit the counters in
+  ``telemetry_stats.json`` (``services.telemetry.recording``).
 * ``--serve PORT`` also serves the stream live on ``[telemetry] serve_bind_ip`` (loopback by
   default) and prints the ``rerun --connect ...`` line; ``--viewer`` spawns a viewer
   connected to it, only when a display exists.
@@ -13,7 +14,9 @@
   threads are never blocked); this thread is the only one that logs. When it cannot keep up
   the oldest data messages are dropped and counted per key; lap and log events never are.
 * The recording is flushed every ``flush_interval_s``; SIGINT / SIGTERM close it cleanly.
-  Garbage on any key is dropped by the bus and reported as a rate-limited warning.
+  Garbage on any key is dropped by the bus, noted in the recording and, like every
+  service, reported on ``events/log`` (the base's ``DropReporter``: rejected payloads and
+  own faults, at most once per ``REPORT_PERIOD_S``).
 """
 
 from __future__ import annotations
@@ -26,9 +29,9 @@ from services.telemetry.inbox import Inbox
 from services.telemetry.recording import RunRecording, start_recording
 from shared.bus import Bus
 from shared.config import RacestackConfig
-from shared.keys import TOPIC_TYPES
-from shared.messages import REGISTRY
-from shared.service import Service, subscribes
+from shared.keys import EVENTS_LOG, TOPIC_TYPES
+from shared.messages import REGISTRY, LogEvent, LogLevelName
+from shared.service import Service, publishes, subscribes
 
 #: How often the drop / queue counters are noted in the recording [s].
 STATS_INTERVAL_S = 1.0
@@ -40,7 +43,10 @@ class TelemetryService(Service):
     """Subscribes to every key of the car and logs what arrives into one recording."""
 
     NAME = "telemetry"
-    PORTS = tuple(subscribes(suffix, REGISTRY[tag]) for suffix, tag in TOPIC_TYPES.items())
+    PORTS = (
+        *(subscribes(suffix, REGISTRY[tag]) for suffix, tag in TOPIC_TYPES.items()),
+        publishes(EVENTS_LOG, LogEvent),
+    )
     PERIOD_S = LOOP_PERIOD_S
 
     def __init__(self, bus: Bus, recording: RunRecording, cfg: RacestackConfig) -> None:
@@ -48,6 +54,7 @@ class TelemetryService(Service):
         self.recording = recording
         self.settings = cfg.telemetry
         self.inbox = Inbox(self.settings.queue_size, self.settings.event_queue_max)
+        self._dropped_said = 0  # inbox drops already said on events/log
         self.subs = {
             suffix: self.subscribe(suffix, functools.partial(self.inbox.put, suffix))
             for suffix in TOPIC_TYPES
@@ -59,28 +66,50 @@ class TelemetryService(Service):
 
     def serve(self, stop: threading.Event) -> int:
         """Log what arrives in batches every ``period_s`` until `stop`; note the counters
-        every ``STATS_INTERVAL_S``, flush every ``flush_interval_s``."""
-        recorder, inbox = self.recording.recorder, self.inbox
-        self.log.info("recording %s/** on %s", self.keys.prefix, self.recording.rrd)
+        every ``STATS_INTERVAL_S`` (and report rejections on ``events/log``), flush every
+        ``flush_interval_s``, start a new segment every ``segment_interval_s``."""
+        recording, inbox = self.recording, self.inbox
+        self.log.info("recording %s/** on %s", self.keys.prefix, recording.rrd)
         next_stats = next_flush = self.clock()
+        next_segment = next_stats + self.settings.segment_interval_s
         while not stop.is_set():
             tick = self.clock()
+            recorder = recording.recorder
             for item in inbox.get_batch(timeout_s=self.period_s):
                 recorder.handle(item.suffix, item.msg, item.recv_wall_s)
             recorder.periodic()
+            self.report()
             now = self.clock()
+            if now >= next_segment:
+                next_segment = now + self.settings.segment_interval_s
+                closed = recording.rotate()
+                self.log.info("segment %s closed; recording on %s", closed.name, recording.rrd)
             if now >= next_stats:
                 next_stats = now + STATS_INTERVAL_S
                 recorder.note_rejected(self.bus.drops.snapshot())
-                recorder.note_queue(len(inbox), inbox.dropped(), self.seq_gaps())
+                dropped = inbox.dropped()
+                recorder.note_queue(len(inbox), dropped, self.seq_gaps())
+                self._say_queue_drops(dropped)
             if now >= next_flush:
                 next_flush = now + self.settings.flush_interval_s
                 recorder.flush()
-                self.recording.rec.flush(timeout_sec=0.0)
+                recording.flush()
             rest = self.period_s - (self.clock() - tick)
             if rest > 0.0:  # work in batches: fewer wake-ups, cheaper per message
                 stop.wait(rest)
         return 0
+
+    def _say_queue_drops(self, dropped: dict[str, int]) -> None:
+        """Say on ``events/log`` (at most once per ``event_interval_s``) that the inbox
+        dropped data messages since the last time (it could not keep up)."""
+        total = sum(dropped.values())
+        if total > self._dropped_said and self.say(
+            LogLevelName.WARNING,
+            f"overloaded: dropped {total - self._dropped_said} of the oldest data messages "
+            f"(total {total}): " + ", ".join(f"{k} x{n}" for k, n in sorted(dropped.items())),
+            limit="queue_drop",
+        ):
+            self._dropped_said = total
 
     def close(self) -> None:
         """The bus is closed, nothing arrives any more: log what is queued, write the stats."""

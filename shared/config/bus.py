@@ -20,6 +20,21 @@ Which process is the hub is the service's built-in role (``listen_default``), wh
 ``[bus.services.<name>]`` table can override together with mode and endpoints.
 ``BusSettings.session_plan(...)`` resolves all of this into a ``SessionPlan`` (pure data,
 no zenoh import); ``shared.bus`` turns the plan into a ``zenoh.Config``.
+
+The secure profile (``security = "mtls"``; the default ``"none"`` is the simulator demo's):
+
+* every link is Zenoh's TLS transport with client certificates (mutual TLS): ``tcp/`` endpoints
+  are used as ``tls/`` on the same host and port; each process presents the certificate of its
+  identity, its service name (``<certs_dir>/<service>.crt`` / ``.key``, CN = the name), and
+  trusts only ``<certs_dir>/ca.crt`` (``racestack certs`` makes them); the server name is
+  verified against the certificate (SAN ``localhost``, ``127.0.0.1``);
+* the hub is the ``router`` service (``services/router``) and carries the access rules
+  (``shared.security.acl``); every other process, the launcher included, is a ``client`` of it
+  with gossip off and no listener, so every sample passes the rules and no peer link can
+  bypass them (a ``[bus.services.<name>] listen_default`` override still moves the hub);
+* ``certs_dir`` is resolved against the working directory of the process (not the config
+  file), unless ``$RACESTACK_CERTS_DIR`` is set (the launcher sets it for its children when it
+  made a throwaway set in the run folder).
 """
 
 from __future__ import annotations
@@ -28,7 +43,7 @@ import ipaddress
 import json
 import re
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -36,6 +51,7 @@ from shared.config.base import Section
 from shared.keys import DEFAULT_CAR, check_chunk
 
 Mode = Literal["peer", "client", "router"]
+Security = Literal["none", "mtls"]
 
 #: The well-known loopback endpoint of the hub.
 DEFAULT_HUB_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -43,7 +59,7 @@ DEFAULT_HUB_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_LOCAL_LISTEN = "tcp/127.0.0.1:0"
 
 _ENDPOINT = re.compile(
-    r"^(?P<proto>tcp|udp)/(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(?P<port>\d{1,5})$"
+    r"^(?P<proto>tcp|udp|tls)/(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(?P<port>\d{1,5})$"
 )
 _LABEL = r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
 _HOSTNAME = re.compile(rf"^(?=.{{1,253}}$){_LABEL}(\.{_LABEL})*$")
@@ -81,14 +97,15 @@ class Endpoint:
 
 
 def parse_endpoint(text: str) -> Endpoint:
-    """Parse ``tcp/HOST:PORT`` or ``udp/HOST:PORT`` (IPv4, ``[IPv6]`` or hostname).
+    """Parse ``tcp/HOST:PORT``, ``udp/HOST:PORT`` or ``tls/HOST:PORT`` (IPv4, ``[IPv6]`` or
+    hostname).
 
     Raises:
         ValueError: anything else (other protocols, ``?``/``#`` options, bad host or port).
     """
     m = _ENDPOINT.match(text) if isinstance(text, str) else None
     if m is None:
-        raise ValueError(f"endpoint {text!r} is not tcp/HOST:PORT or udp/HOST:PORT")
+        raise ValueError(f"endpoint {text!r} is not tcp/, udp/ or tls/HOST:PORT")
     host, port = m["host"], int(m["port"])
     if host.startswith("["):
         host = host[1:-1]
@@ -117,6 +134,18 @@ def connectable(text: str) -> str:
     return str(ep)
 
 
+def as_tls(text: str) -> str:
+    """The ``tls/`` endpoint on the same host and port as a ``tcp/`` or ``tls/`` one.
+
+    Raises:
+        ValueError: a ``udp/`` endpoint (TLS runs over TCP only).
+    """
+    ep = parse_endpoint(text)
+    if ep.proto == "udp":
+        raise ValueError(f"endpoint {text!r}: the secure profile needs tcp/ or tls/, not udp/")
+    return str(Endpoint("tls", ep.host, ep.port))
+
+
 def _check_endpoints(values: list[str] | None, *, connect: bool) -> list[str] | None:
     if values is None:
         return None
@@ -128,7 +157,16 @@ def _check_endpoints(values: list[str] | None, *, connect: bool) -> list[str] | 
 
 
 class ServiceBusOverride(Section):
-    """Per-service overrides (``[bus.services.<name>]``); None keeps the general value."""
+    """Per-service overrides (``[bus.services.<name>]``); None keeps the general value.
+
+    Attributes:
+        mode: Zenoh mode of this service ("peer", "client" or "router").
+        listen_default: True: this service is the hub and listens on `listen`.
+        listen: endpoints this service listens on when it is the hub.
+        connect: endpoints this service connects to.
+        local_listen: what this service listens on when it is not the hub.
+        gossip: gossip scouting for this service.
+    """
 
     mode: Mode | None = None
     listen_default: bool | None = Field(
@@ -151,6 +189,43 @@ class ServiceBusOverride(Section):
 
 
 @dataclass(frozen=True)
+class TlsPlan:
+    """The files of one process's mutual-TLS session (paths as given, cwd-relative or not).
+
+    Attributes:
+        root_ca: the CA certificate every peer must chain to.
+        cert, key: this process's certificate (CN = its identity) and private key.
+        listen: True for the hub (it also serves TLS with the same certificate).
+    """
+
+    root_ca: str
+    cert: str
+    key: str
+    listen: bool
+
+    def missing(self) -> list[str]:
+        """The files that do not exist (the caller says so; nothing is read)."""
+        from pathlib import Path
+
+        return [p for p in (self.root_ca, self.cert, self.key) if not Path(p).is_file()]
+
+    def zenoh_entries(self) -> dict[str, str]:
+        """``transport/link/tls/*`` paths -> JSON5 values (Zenoh 1.x keys)."""
+        base = "transport/link/tls/"
+        out = {
+            base + "root_ca_certificate": json.dumps(self.root_ca),
+            base + "enable_mtls": json.dumps(True),
+            base + "connect_private_key": json.dumps(self.key),
+            base + "connect_certificate": json.dumps(self.cert),
+            base + "verify_name_on_connect": json.dumps(True),
+        }
+        if self.listen:
+            out[base + "listen_private_key"] = json.dumps(self.key)
+            out[base + "listen_certificate"] = json.dumps(self.cert)
+        return out
+
+
+@dataclass(frozen=True)
 class SessionPlan:
     """The resolved session settings of one process (what ``shared.bus`` gives Zenoh).
 
@@ -160,6 +235,8 @@ class SessionPlan:
         connect: endpoints this process connects to.
         multicast_scouting: multicast scouting on (never by default).
         gossip: gossip scouting on.
+        tls: the mutual-TLS files (None: plain TCP, the profile ``security = "none"``).
+        access_control: the hub's Zenoh ``access_control`` section (None: no rules).
     """
 
     mode: Mode
@@ -167,16 +244,23 @@ class SessionPlan:
     connect: tuple[str, ...]
     multicast_scouting: bool
     gossip: bool
+    tls: TlsPlan | None = None
+    access_control: dict[str, Any] | None = None
 
     def zenoh_entries(self) -> dict[str, str]:
         """Zenoh config path -> JSON5 value, for ``zenoh.Config.insert_json5``."""
-        return {
+        out = {
             "mode": json.dumps(self.mode),
             "listen/endpoints": json.dumps(list(self.listen)),
             "connect/endpoints": json.dumps(list(self.connect)),
             "scouting/multicast/enabled": json.dumps(self.multicast_scouting),
             "scouting/gossip/enabled": json.dumps(self.gossip),
         }
+        if self.tls is not None:
+            out.update(self.tls.zenoh_entries())
+        if self.access_control is not None:
+            out["access_control"] = json.dumps(self.access_control)
+        return out
 
 
 class BusSettings(Section):
@@ -193,6 +277,11 @@ class BusSettings(Section):
         gossip: gossip scouting; None = on iff every listen endpoint of the process is
             loopback.
         services: per-service overrides, by service name.
+        security: "none" (plain TCP, anyone on the bus may publish: the simulator demo) or
+            "mtls" (mutual TLS, one certificate per service, the hub's access rules: see the
+            module docstring).
+        certs_dir: the certificates folder of "mtls" (``racestack certs --out DIR``),
+            relative to the working directory of the process.
     """
 
     car: str = DEFAULT_CAR
@@ -203,6 +292,8 @@ class BusSettings(Section):
     multicast_scouting: bool = False
     gossip: bool | None = None
     services: dict[str, ServiceBusOverride] = Field(default_factory=dict)
+    security: Security = "none"
+    certs_dir: str = Field("certs", min_length=1)
 
     @field_validator("car")
     @classmethod
@@ -230,21 +321,42 @@ class BusSettings(Section):
     def _hub_reachable(self) -> BusSettings:
         if not self.connect and any(parse_endpoint(e).port == 0 for e in self.listen):
             raise ValueError("listen has port 0 and connect is empty: nobody could reach the hub")
+        lists = [self.listen, self.connect, self.local_listen]
+        for o in self.services.values():
+            lists += [o.listen or [], o.connect or [], o.local_listen or []]
+        endpoints = [e for lst in lists for e in lst]
+        if self.security == "mtls":
+            for e in endpoints:
+                as_tls(e)  # ValueError for udp
+        else:
+            tls = [e for e in endpoints if parse_endpoint(e).proto == "tls"]
+            if tls:
+                raise ValueError(f"tls/ endpoints {tls} need security = \"mtls\"")
         return self
 
     def session_plan(
-        self, *, listen_default: bool, service: str | None = None, mode: Mode | None = None
+        self,
+        *,
+        listen_default: bool,
+        service: str | None = None,
+        mode: Mode | None = None,
+        certs_dir: str | None = None,
     ) -> SessionPlan:
         """Resolve the session settings of one process.
 
         Args:
             listen_default: the service's built-in role: True for the hub (listens on the
-                well-known ``listen`` endpoints), False for everyone else.
+                well-known ``listen`` endpoints), False for everyone else. Ignored by
+                "mtls", where the hub is the ``router`` service.
             service: the service name; its ``services`` override (if any) wins over the
-                built-in role and the general settings.
+                built-in role and the general settings. In "mtls" also its identity (its
+                certificate's name); required there.
             mode: the service's built-in Zenoh mode (e.g. "router" for the launcher's
                 router); None: the general ``mode``.
+            certs_dir: overrides ``certs_dir`` (the shell passes ``$RACESTACK_CERTS_DIR``).
         """
+        if self.security == "mtls":
+            return self._secure_plan(service, certs_dir)
         o = self.services.get(service) if service else None
         o = o or ServiceBusOverride()
         hub = o.listen_default if o.listen_default is not None else listen_default
@@ -272,4 +384,35 @@ class BusSettings(Section):
             connect=tuple(connect),
             multicast_scouting=self.multicast_scouting,
             gossip=bool(gossip),
+        )
+
+    def _secure_plan(self, service: str | None, certs_dir: str | None) -> SessionPlan:
+        """The session of `service` in the secure profile (see the module docstring)."""
+        from pathlib import Path
+
+        from shared.security.acl import access_control
+        from shared.security.identities import HUB_IDENTITY, identity_files
+
+        if not service:
+            raise ValueError('security = "mtls" needs the service name (its identity)')
+        o = self.services.get(service) or ServiceBusOverride()
+        hub = o.listen_default if o.listen_default is not None else service == HUB_IDENTITY
+        hub_listen = o.listen if o.listen is not None else self.listen
+        connect = o.connect if o.connect is not None else self.connect
+        if hub:
+            listen = [as_tls(e) for e in hub_listen]
+            own = {connectable(e) for e in listen}
+            connect = [as_tls(e) for e in connect if connectable(as_tls(e)) not in own]
+        else:
+            listen = []
+            connect = [as_tls(connectable(e)) for e in (connect or hub_listen)]
+        files = identity_files(Path(certs_dir or self.certs_dir), service)
+        return SessionPlan(
+            mode="router" if hub else "client",
+            listen=tuple(listen),
+            connect=tuple(connect),
+            multicast_scouting=False,
+            gossip=False,
+            tls=TlsPlan(str(files.ca), str(files.cert), str(files.key), listen=hub),
+            access_control=access_control(self.car) if hub else None,
         )

@@ -1,9 +1,10 @@
 """Settings of the telemetry service (``[telemetry]``): recording, live stream, load limits.
 
 The telemetry service subscribes to every key of the car, turns each message into Rerun log
-calls and writes them to ``<runs_dir>/<YYYYmmdd-HHMMSS>/telemetry.rrd`` (or ``--out DIR``);
-``serve_port`` also serves the recording live on ``serve_bind_ip`` (loopback by default) for
-``rerun --connect rerun+http://127.0.0.1:<port>/proxy``.
+calls and writes them, in segments of ``segment_interval_s``, to
+``<runs_dir>/<YYYYmmdd-HHMMSS>/telemetry.0000.rrd``, ``telemetry.0001.rrd``, ... (or
+``--out DIR``); ``serve_port`` also serves the recording live on ``serve_bind_ip`` (loopback
+by default) for ``rerun --connect rerun+http://127.0.0.1:<port>/proxy``.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ class TelemetrySettings(Section):
     """The ``[telemetry]`` section.
 
     Attributes:
-        runs_dir: parent folder of the run folders (``runs/<timestamp>/telemetry.rrd``).
+        runs_dir: parent folder of the run folders (``runs/<timestamp>/telemetry.NNNN.rrd``).
         app_id: Rerun application id of the recordings.
         serve_port: serve the live stream on this TCP port (None: file only).
         serve_bind_ip: address the live gRPC server binds (keep loopback; use an SSH tunnel
@@ -38,6 +39,13 @@ class TelemetrySettings(Section):
             is never trimmed by the queue policy below this size [messages].
         batch_interval_s: scalar series are buffered and sent as columns this often [s].
         flush_interval_s: the recording is flushed to disk this often [s] (crash safety).
+        segment_interval_s: the open segment is closed (flushed, footer written) and the next
+            one opened this often [s of wall time]: a SIGKILL loses at most the open segment's
+            last ``flush_interval_s``, every closed segment verifies (``rerun rrd verify``),
+            and the SDK's per-file memory (it keeps an index of every chunk until the footer)
+            stays bounded by one segment.
+        serve_memory_limit_mb: most data the live gRPC server keeps for late viewers [MiB]
+            (the oldest is dropped beyond it).
         visual_max_hz: most car / truth / horizon drawings per second of message time [Hz]
             (scalar series always keep every message).
         scan_max_hz: most lidar scans drawn per second of message time [Hz] (0: none).
@@ -60,6 +68,8 @@ class TelemetrySettings(Section):
     event_queue_max: int = Field(100_000, ge=100, le=10_000_000)
     batch_interval_s: float = Field(0.5, gt=0.0, le=5.0)
     flush_interval_s: float = Field(1.0, gt=0.0, le=60.0)
+    segment_interval_s: float = Field(60.0, gt=0.0, le=3600.0)
+    serve_memory_limit_mb: int = Field(256, ge=16, le=65536)
     visual_max_hz: float = Field(20.0, gt=0.0, le=1000.0)
     scan_max_hz: float = Field(10.0, ge=0.0, le=1000.0)
     path_interval_s: float = Field(0.5, gt=0.0, le=60.0)

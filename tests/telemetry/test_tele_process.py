@@ -15,6 +15,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -27,17 +28,19 @@ import rerun as rr
 
 from services.launcher.supervisor import stop_process
 from services.telemetry import report
+from services.telemetry.rrd_files import find_segments
 from services.telemetry.synthetic import lap_stream, replay
 from shared.bus import Bus
 from shared.config import load_config
 from shared.config.telemetry import TelemetrySettings
 from shared.keys import DRIVE_CMD, EVENTS_LOG, LAP, PLAN, POSE, STATE
-from shared.messages import State
+from shared.messages import LogEvent, State
 from shared.track import load_track
 
 ROOT = Path(__file__).resolve().parents[2]
 T0_S = 1000.0  #: first stamp of the synthetic stream [s] (simulation time)
 DURATION_S = 2.6  #: length of the stream [s]
+SEGMENT_S = 1.0  #: [telemetry] segment_interval_s of the run: several segments [s]
 SPEED_MPS = 3.5
 GARBAGE_AT_S = 1.0  #: stream time of the garbage burst [s]
 START_TIMEOUT_S = 25.0
@@ -122,10 +125,12 @@ def _free_ports(n: int) -> list[int]:
 
 
 def read_rrd(path: Path) -> dict[str, dict[str, list[Any]]]:
-    """entity -> column -> values (rows of every chunk in file order; times in s)."""
+    """entity -> column -> values (rows of every chunk in file order, the segments of a
+    segmented recording one after the other; times in s)."""
     out: dict[str, dict[str, list[Any]]] = defaultdict(lambda: defaultdict(list))
-    store = rr.chunk.RrdReader(str(path)).stream().collect()
-    for chunk in store.stream():
+    chunks = [c for f in find_segments(path)
+              for c in rr.chunk.RrdReader(str(f)).stream().collect().stream()]
+    for chunk in chunks:
         rb = chunk.to_record_batch()
         cols = out[chunk.entity_path.lstrip("/")]
         for name in rb.schema.names:
@@ -149,7 +154,8 @@ def recorded(tmp_path_factory: pytest.TempPathFactory, tele_circle_csv: Path) ->
     toml = tmp / "racestack.toml"
     toml.write_text(
         f'[track]\nsource = "{tele_circle_csv}"\n\n'
-        f'[bus]\ncar = "teletest"\nlisten = ["tcp/127.0.0.1:{port}"]\n',
+        f'[bus]\ncar = "teletest"\nlisten = ["tcp/127.0.0.1:{port}"]\n\n'
+        f"[telemetry]\nsegment_interval_s = {SEGMENT_S}\n",
         encoding="utf-8",
     )
     cfg = load_config(toml)
@@ -200,6 +206,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory, tele_circle_csv: Path) ->
             probe = hub.publisher(hub.keys.state, State)
             assert probe.wait_matching(5.0)
             probe.undeclare()
+            logs = hub.subscribe(hub.keys.events_log, LogEvent, queue_size=1000)
             garbage_sent: list[float] = []
 
             def inject(t: float) -> None:
@@ -214,10 +221,17 @@ def recorded(tmp_path_factory: pytest.TempPathFactory, tele_circle_csv: Path) ->
                 lap_stream(track, DURATION_S, t0_s=T0_S, speed_mps=SPEED_MPS),
                 before_put=inject,
             )
+            t_report = time.monotonic() + 5.0  # the rejections reported within a period
+            reported = False
+            while not reported and time.monotonic() < t_report:
+                reported = any(e.source == "telemetry" and "rejected" in e.text
+                               for e in logs.drain())
+                time.sleep(0.05)
         finally:
             code = _stop(proc)
             saver_code = _wait_or_kill(saver)
     return {
+        "reported_rejections": reported,
         "code": code,
         "sent": sent,
         "garbage_at": T0_S + garbage_sent[0],
@@ -226,7 +240,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory, tele_circle_csv: Path) ->
         "saver_code": saver_code,
         "live": tmp / "live.rrd",
         "log": log_path.read_text(errors="replace"),
-        "data": read_rrd(out / "telemetry.rrd"),
+        "data": read_rrd(out),
         "track": track,
     }
 
@@ -238,14 +252,28 @@ def _monotone(times: list[float]) -> bool:
 def test_tele_process_exits_cleanly_and_writes_files(recorded: dict[str, Any]) -> None:
     assert recorded["code"] == 0, recorded["log"]
     out: Path = recorded["out"]
-    assert (out / "telemetry.rrd").stat().st_size > 10_000
+    segments = find_segments(out)
+    assert len(segments) >= 2, "a new segment every SEGMENT_S"
+    assert [p.name for p in segments[:2]] == ["telemetry.0000.rrd", "telemetry.0001.rrd"]
+    assert sum(p.stat().st_size for p in segments) > 10_000
     assert (out / "telemetry.rbl").is_file()
     stats = json.loads((out / "telemetry_stats.json").read_text())
+    assert stats["segments"] == [p.name for p in segments]
     assert stats["dropped_by_queue"] == {}
     assert stats["record_errors"] == 0
     assert sum(stats["rejected"].values()) >= len(GARBAGE) - 1  # every bad payload counted
-    reader = rr.chunk.RrdReader(str(out / "telemetry.rrd"))
-    assert reader.blueprints(), "the default blueprint is inside the recording"
+    for path in segments:  # each closed cleanly: footer, static track
+        reader = rr.chunk.RrdReader(str(path))
+        reader.store()  # needs the footer
+        entities = {c.entity_path.lstrip("/") for c in reader.stream().collect().stream()}
+        assert "world/track/left" in entities, path.name  # every segment has the track
+    # the layout is sent once (each blueprint sent leaks memory in rerun-sdk 0.41)
+    assert rr.chunk.RrdReader(str(segments[0])).blueprints()
+
+
+def test_tele_reports_its_rejections_on_events_log(recorded: dict[str, Any]) -> None:
+    """Like every service, telemetry publishes its rejected-payload counts on events/log."""
+    assert recorded["reported_rejections"], recorded["log"]
 
 
 def test_tele_track_is_static(recorded: dict[str, Any]) -> None:

@@ -26,9 +26,9 @@ from services.telemetry.recorder import (
 from services.telemetry.recording import (
     connect_url,
     display_available,
-    free_recording_path,
+    free_recording_stem,
     new_run_dir,
-    open_recording,
+    open_segment,
     serve_problem,
     spawn_viewer,
 )
@@ -60,7 +60,7 @@ def track(tele_circle_csv: Path) -> Track:
 @pytest.fixture
 def recording(tmp_path: Path) -> Iterator[tuple[rr.RecordingStream, Path]]:
     path = tmp_path / "t.rrd"
-    rec = open_recording(TelemetrySettings(), path, "unit", None)
+    rec = open_segment(TelemetrySettings(), path, "unit")
     try:
         yield rec, path
     finally:
@@ -235,7 +235,7 @@ def test_tele_silence_is_reported_as_stale_input(recording: Rec) -> None:
 def test_tele_recording_is_readable_while_open(tmp_path: Path, track: Track) -> None:
     """A crash after a periodic flush keeps what was flushed (the file is streamable)."""
     path = tmp_path / "open.rrd"
-    rec = open_recording(TelemetrySettings(), path, "open", None)
+    rec = open_segment(TelemetrySettings(), path, "open")
     try:
         recorder = Recorder(rec, TelemetrySettings())
         recorder.log_static(track)
@@ -270,8 +270,11 @@ def test_tele_settings_and_helpers(tmp_path: Path) -> None:
     a = new_run_dir(tmp_path, now=0.0)
     b = new_run_dir(tmp_path, now=0.0)
     assert a != b and a.is_dir() and b.is_dir()
-    (a / "telemetry.rrd").write_bytes(b"x")
-    assert free_recording_path(a).name == "telemetry-2.rrd"
+    assert free_recording_stem(a) == "telemetry"
+    (a / "telemetry.rrd").write_bytes(b"x")  # a single-file recording of an older version
+    assert free_recording_stem(a) == "telemetry-2"
+    (a / "telemetry-2.0000.rrd").write_bytes(b"x")
+    assert free_recording_stem(a) == "telemetry-3"
     with pytest.raises(FileNotFoundError):
         report.find_recording(b)
     assert report.main([str(tmp_path / "missing.rrd")]) == 2

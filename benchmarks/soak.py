@@ -1,0 +1,275 @@
+"""Soak: race the whole stack for a long time and watch every process's memory (issue 15).
+
+Starts ``racestack up`` (the launcher with its router, the simulator, the localization
+bridge, the planner and the telemetry, one process each, as a user would) on a built-in
+track with more laps than fit in the time, on its own car name and a free loopback port, so
+it never meets another stack on this machine, and its simulated lidar at ``--lidar-hz``
+(10 Hz; the simulator does not skip ahead when it falls behind real time, and on a loaded
+2-core machine at 20 Hz it fell behind until the bridge rejected every pose as stale and the
+planner braked for good). Every ``--sample-s`` it reads, with psutil,
+the resident set size of each process the launcher started (found as its children by their
+``-m services.<name>`` command line) and of the launcher itself, and the size of the
+recording's segments on disk. After ``--minutes`` it stops the stack with SIGINT (the
+launcher stops its children; the recording closes its last segment) and prints:
+
+* per process: RSS at ``--warmup-min`` (5 min), at the end (each the largest sample of one
+  segment length: the telemetry's RSS is a saw-tooth, rising within a segment and falling
+  when it closes), the largest, and the growth from the warm-up to the end [%] (the
+  acceptance: <= 10 % for every process);
+* the recording: total size, segments, and its growth per minute after the warm-up
+  (least-squares slope of size over time) [MB/min];
+* that every closed segment verifies (``rerun rrd verify``), with the count.
+
+    .venv/bin/python -m benchmarks.soak --minutes 30            # the acceptance run
+    .venv/bin/python -m benchmarks.soak --minutes 2 --warmup-min 0.5   # a quick look
+
+The samples are written to ``<out>/soak.json`` (``--out``, default a temp folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import psutil
+
+from services.telemetry.rrd_files import find_segments
+from shared.net import free_loopback_port
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Processes watched: the launcher and the services it starts.
+WATCHED = ("launcher", "simulator", "localization_bridge", "planner", "telemetry")
+#: Largest allowed RSS growth after the warm-up [%] (issue 15).
+GROWTH_LIMIT_PCT = 10.0
+MB = 1e6
+#: A completed lap in the launcher's output: ``lap 3: 13.270 s, ...``.
+LAP_LINE = re.compile(r"^lap \d+: [\d.]+ s", re.MULTILINE)
+
+
+def soak_config(path: Path, port: int, track: str, segment_s: float, lidar_hz: float) -> Path:
+    """A TOML of the soak: its own car name and hub port, the track, the segment length,
+    the simulated lidar's rate."""
+    path.write_text(
+        f'[track]\nsource = "{track}"\n\n'
+        f'[bus]\ncar = "soak{port}"\nlisten = ["tcp/127.0.0.1:{port}"]\n\n'
+        f"[telemetry]\nsegment_interval_s = {segment_s}\n\n"
+        f"[simulator.lidar]\nrate_hz = {lidar_hz}\n",
+        encoding="utf-8",
+    )
+    return path
+
+
+def service_of(proc: psutil.Process) -> str | None:
+    """The racestack service a child process runs (``-m services.<name>``), or None."""
+    try:
+        cmd = proc.cmdline()
+    except (psutil.NoSuchProcess, psutil.AccessDenied):
+        return None
+    for i, arg in enumerate(cmd[:-1]):
+        if arg == "-m" and cmd[i + 1].startswith("services."):
+            return cmd[i + 1].split(".")[1]
+    return None
+
+
+def rss_by_service(launcher: psutil.Process) -> dict[str, float]:
+    """RSS [MB] of the launcher and of each service process it started."""
+    out: dict[str, float] = {}
+    try:
+        out["launcher"] = launcher.memory_info().rss / MB
+        children = launcher.children(recursive=True)
+    except psutil.NoSuchProcess:
+        return out
+    for child in children:
+        name = service_of(child)
+        if name is None:
+            continue
+        try:
+            out[name] = child.memory_info().rss / MB
+        except psutil.NoSuchProcess:
+            continue
+    return out
+
+
+def recording_bytes(run_dir: Path) -> tuple[int, int]:
+    """(total bytes, number of segments) of the run's recording so far."""
+    try:
+        files = find_segments(run_dir)
+    except FileNotFoundError:
+        return 0, 0
+    return sum(f.stat().st_size for f in files if f.exists()), len(files)
+
+
+def verify(files: list[Path], env: dict[str, str]) -> tuple[int, list[str]]:
+    """(segments that pass ``rerun rrd verify``, the messages of those that do not)."""
+    rerun = str(Path(sys.executable).parent / "rerun")
+    ok, bad = 0, []
+    for f in files:
+        res = subprocess.run([rerun, "rrd", "verify", str(f)], env=env, capture_output=True,
+                             text=True, timeout=300)
+        if res.returncode == 0:
+            ok += 1
+        else:
+            bad.append(f"{f.name}: {(res.stderr or res.stdout).strip()[-300:]}")
+    return ok, bad
+
+
+def growth_table(
+    samples: list[dict[str, Any]], warmup_s: float, window_s: float
+) -> list[dict[str, Any]]:
+    """Per process: RSS after the warm-up and at the end, max, growth [%].
+
+    "After the warm-up" and "at the end" are each the LARGEST sample of a window of
+    `window_s` (one recording segment: the telemetry's RSS rises within a segment and falls
+    when it closes, so single samples would depend on where in that saw-tooth they fall).
+    """
+    after = [s for s in samples if s["t_s"] >= warmup_s]
+    if not after:
+        return []
+    t_end = after[-1]["t_s"]
+    first = [s for s in after if s["t_s"] < warmup_s + window_s]
+    last = [s for s in after if s["t_s"] > t_end - window_s]
+    rows = []
+    for name in WATCHED:
+        a_all = [s["rss_mb"][name] for s in first if name in s["rss_mb"]]
+        b_all = [s["rss_mb"][name] for s in last if name in s["rss_mb"]]
+        if not a_all or not b_all:
+            continue
+        a, b = max(a_all), max(b_all)
+        peak = max(s["rss_mb"].get(name, 0.0) for s in after)
+        rows.append({"service": name, "rss_warm_mb": a, "rss_end_mb": b, "rss_max_mb": peak,
+                     "growth_pct": 100.0 * (b - a) / a})
+    return rows
+
+
+def slope_mb_per_min(samples: list[dict[str, Any]], warmup_s: float) -> float:
+    """Least-squares growth of the recording after the warm-up [MB/min]."""
+    pts = [(s["t_s"], s["rrd_bytes"]) for s in samples if s["t_s"] >= warmup_s]
+    if len(pts) < 2:
+        return float("nan")
+    t, b = np.array(pts, dtype=float).T
+    return float(np.polyfit(t / 60.0, b / MB, 1)[0])
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="racestack-soak-"))
+    out.mkdir(parents=True, exist_ok=True)
+    port = free_loopback_port()
+    toml = soak_config(out / "soak.toml", port, args.track, args.segment_s, args.lidar_hz)
+    run_dir = out / "run"
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
+    for name in ("XDG_CONFIG_HOME", "XDG_DATA_HOME"):  # rerun's analytics stay off and here
+        (out / name).mkdir(exist_ok=True)
+        env[name] = str(out / name)
+    subprocess.run([str(Path(sys.executable).parent / "rerun"), "analytics", "disable"],
+                   env=env, capture_output=True, timeout=60)
+    log_path = out / "up.log"
+    cmd = [sys.executable, "-m", "services.cli", "up", "--config", str(toml),
+           "--laps", str(args.laps), "--run-dir", str(run_dir)]
+    print(f"soak: {args.minutes:g} min on {args.track}; {' '.join(cmd)}; log {log_path}",
+          flush=True)
+    samples: list[dict[str, Any]] = []
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(cmd, cwd=str(ROOT), env=env, stdout=log,
+                                stderr=subprocess.STDOUT)
+        launcher = psutil.Process(proc.pid)
+        try:
+            deadline = time.monotonic() + 600.0  # wait for racing to start
+            while b"racing" not in log_path.read_bytes():
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    print(f"soak: the stack did not start; see {log_path}", file=sys.stderr)
+                    return 1
+                time.sleep(1.0)
+            t0 = time.monotonic()
+            end = t0 + args.minutes * 60.0
+            next_sample = t0
+            while time.monotonic() < end:
+                if proc.poll() is not None:
+                    print(f"soak: the stack ended early (code {proc.returncode}); "
+                          f"see {log_path}", file=sys.stderr)
+                    break
+                now = time.monotonic()
+                if now >= next_sample:
+                    size, nseg = recording_bytes(run_dir)
+                    sample = {"t_s": now - t0, "rss_mb": rss_by_service(launcher),
+                              "rrd_bytes": size, "segments": nseg}
+                    samples.append(sample)
+                    next_sample += args.sample_s
+                    if len(samples) % max(1, round(60.0 / args.sample_s)) == 1:
+                        rss = ", ".join(f"{k} {v:.0f}" for k, v in sample["rss_mb"].items())
+                        print(f"  t {sample['t_s'] / 60:5.1f} min  RSS [MB] {rss};  "
+                              f"recording {size / MB:.1f} MB in {nseg} segments", flush=True)
+                time.sleep(min(1.0, max(0.0, next_sample - time.monotonic())))
+        except KeyboardInterrupt:
+            print("soak: interrupted; the figures below cover what was sampled", flush=True)
+        finally:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=120.0)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(timeout=30.0)
+    warmup_s = args.warmup_min * 60.0
+    table = growth_table(samples, warmup_s, max(args.segment_s, args.sample_s))
+    rate = slope_mb_per_min(samples, warmup_s)
+    files = find_segments(run_dir) if run_dir.is_dir() else []
+    ok, bad = verify(files, env)
+    laps = len(LAP_LINE.findall(log_path.read_text(errors="replace")))
+    duration = samples[-1]["t_s"] / 60.0 if samples else 0.0
+    print(f"\nsoak: {duration:.1f} min of racing, {laps} laps, {len(samples)} samples "
+          f"every {args.sample_s:g} s; growth from t = {args.warmup_min:g} min to the end")
+    print(f"(RSS at {args.warmup_min:g} min and at the end: the largest sample of one segment "
+          f"length, {args.segment_s:g} s)")
+    print(f"{'service':<22}{'RSS@warm MB':>12}{'RSS end MB':>12}{'max MB':>9}{'growth %':>10}")
+    for r in table:
+        print(f"{r['service']:<22}{r['rss_warm_mb']:>12.1f}{r['rss_end_mb']:>12.1f}"
+              f"{r['rss_max_mb']:>9.1f}{r['growth_pct']:>10.1f}")
+    size, nseg = recording_bytes(run_dir)
+    print(f"recording: {size / MB:.1f} MB in {nseg} segments, growing {rate:.2f} MB/min "
+          f"after the warm-up; {ok}/{len(files)} segments pass `rerun rrd verify`")
+    for line in bad:
+        print(f"  not verified: {line}")
+    worst = max((r["growth_pct"] for r in table), default=float("nan"))
+    passed = bool(table) and worst <= GROWTH_LIMIT_PCT and not bad
+    print(f"largest growth {worst:.1f} % (limit {GROWTH_LIMIT_PCT:g} %): "
+          f"{'PASS' if passed else 'FAIL'}")
+    (out / "soak.json").write_text(json.dumps({
+        "minutes": duration, "laps": laps, "sample_s": args.sample_s,
+        "warmup_min": args.warmup_min, "table": table, "recording_mb_per_min": rate,
+        "recording_bytes": size, "segments": nseg, "verified": ok, "not_verified": bad,
+        "samples": samples}, indent=1) + "\n", encoding="utf-8")
+    print(f"samples: {out / 'soak.json'}")
+    return 0 if passed else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=30.0, help="racing time [min]")
+    ap.add_argument("--warmup-min", type=float, default=5.0,
+                    help="growth is measured from this time on [min]")
+    ap.add_argument("--sample-s", type=float, default=10.0, help="RSS sample period [s]")
+    ap.add_argument("--track", default="builtin:paperlike", help="track to race")
+    ap.add_argument("--laps", type=int, default=100_000,
+                    help="laps asked of racestack up (more than fit: the time ends the soak)")
+    ap.add_argument("--segment-s", type=float, default=60.0,
+                    help="[telemetry] segment_interval_s of the run [s]")
+    ap.add_argument("--lidar-hz", type=float, default=10.0,
+                    help="[simulator.lidar] rate_hz: the simulated lidar is the costliest part "
+                         "of the simulator; 10 Hz (the default is 20) keeps it in real time "
+                         "on a loaded 2-core machine")
+    ap.add_argument("--out", help="folder for the run, its log and soak.json (default: temp)")
+    return run(ap.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

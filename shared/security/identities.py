@@ -1,0 +1,79 @@
+"""Who may be on the bus in the secure profile: the identities and their certificate files.
+
+One certificate per identity; the certificate's subject common name (CN) *is* the identity
+the hub's access control sees (``cert_common_names``). A service's identity is its service
+name (``shared.service.Service.NAME``), so a process knows which files are its own.
+
+Files in a certificates folder (``racestack certs --out DIR``)::
+
+    ca.crt                  the local certificate authority (every session trusts only it)
+    ca.key                  its private key (keep it off the car once the certificates exist)
+    <identity>.crt / .key   one pair per identity (PEM; keys written with mode 0600)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+#: The identity of the ROS 2 side: zenoh-bridge-ros2dds, or rmw_zenoh's router or nodes,
+#: connecting to the hub with this certificate; it may put the keys of the inbound
+#: ``[[ros2.topics]]`` (ROS -> stack), which the ros2_gateway turns into ``vehicle/*``.
+ROS2_IDENTITY = "ros2"
+
+#: Every identity ``racestack certs`` makes a certificate for: the processes of the stack,
+#: the real-car drivers and gateways, the launcher (the hub of ``racestack up``), an
+#: operator's console (allowed to send ``sim/control``) and the ROS 2 side.
+IDENTITIES: tuple[str, ...] = (
+    "router",
+    "simulator",
+    "localization_bridge",
+    "planner",
+    "telemetry",
+    "vesc_driver",
+    "lidar_driver",
+    "ros2_gateway",
+    "launcher",
+    "operator",
+    ROS2_IDENTITY,
+)
+
+#: The identity of the hub in the secure profile: the router (``services/router``) carries
+#: the access rules; every other process, the launcher included, is a client of it.
+HUB_IDENTITY = "router"
+#: Environment variable that overrides ``[bus] certs_dir`` (the launcher sets it for its
+#: children when it made a throwaway certificates folder in the run folder).
+CERTS_DIR_ENV = "RACESTACK_CERTS_DIR"
+
+#: File name of the certificate authority's certificate in a certificates folder.
+CA_CERT = "ca.crt"
+#: File name of the certificate authority's private key.
+CA_KEY = "ca.key"
+
+
+@dataclass(frozen=True)
+class IdentityFiles:
+    """The three files one TLS session needs (absolute or cwd-relative paths).
+
+    Attributes:
+        ca: the CA certificate every peer certificate must chain to.
+        cert: this identity's certificate (CN = the identity).
+        key: this identity's private key (PEM, unencrypted, mode 0600).
+    """
+
+    ca: Path
+    cert: Path
+    key: Path
+
+    def missing(self) -> list[Path]:
+        """The files that do not exist (empty when the identity can open a session)."""
+        return [p for p in (self.ca, self.cert, self.key) if not p.is_file()]
+
+
+def identity_files(certs_dir: Path, identity: str) -> IdentityFiles:
+    """The file names of `identity` in `certs_dir` (no file is read)."""
+    return IdentityFiles(
+        ca=certs_dir / CA_CERT,
+        cert=certs_dir / f"{identity}.crt",
+        key=certs_dir / f"{identity}.key",
+    )
