@@ -7,7 +7,9 @@ racestack bench ...              the paper's lap-time experiment in one process
 racestack mintime ...            the minimum-time lap of the simulator's car (the limit)
 racestack tune ...               search a method's parameters for the fastest clean laps
 racestack report RUN             the lap table and figures of a recorded run
+racestack track --from-map M     a track (centreline CSV + PNG) from a SLAM map's yaml
 racestack laps                   the planner against its own kinematic model
+racestack certs --out DIR        the secure profile's local CA and per-service certificates
 """
 
 from __future__ import annotations
@@ -19,11 +21,21 @@ import sys
 from collections.abc import Callable
 
 from shared.config import ConfigError, load_config
+from shared.service_shell import OneLineArgumentParser, positive_int
 from shared.track import TrackError
 
 Handler = Callable[[argparse.Namespace], int]
 #: Services startable with ``racestack run NAME`` (each is ``python -m services.NAME``).
-SERVICES = ("router", "simulator", "localization_bridge", "planner", "telemetry", "vesc_driver")
+SERVICES = (
+    "router",
+    "simulator",
+    "localization_bridge",
+    "planner",
+    "telemetry",
+    "vesc_driver",
+    "lidar_driver",
+    "ros2_gateway",
+)
 
 
 def _cmd_laps(args: argparse.Namespace) -> int:
@@ -43,7 +55,11 @@ def _cmd_laps(args: argparse.Namespace) -> int:
     )
     max_ticks = round(120.0 * args.laps / settings.dt_s)
     got = race(planner, plant, args.laps, max_ticks=max_ticks)
-    return 0 if got.laps == args.laps else 1
+    if got.laps < args.laps:
+        print(f"racestack laps: only {got.laps} of {args.laps} laps completed in "
+              f"{max_ticks} planner ticks", file=sys.stderr)
+        return 1
+    return 0
 
 
 def _cmd_up(args: argparse.Namespace) -> int:
@@ -103,9 +119,50 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return int(report_main(args.rest))
 
 
+def _cmd_track(args: argparse.Namespace) -> int:
+    from shared.track.cli import main as track_main
+
+    return track_main(args=args)
+
+
+def tcp_port(text: str) -> int:
+    """An argparse ``type``: a TCP port number, 1..65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 1..65535, got {value}")
+    return value
+
+
+def _plain(parser: argparse.ArgumentParser) -> None:
+    """Remove RST double backticks from the help of `parser` and its subcommands (help
+    texts come from docstrings)."""
+    for text_attr in ("description", "epilog"):
+        text = getattr(parser, text_attr)
+        if text:
+            setattr(parser, text_attr, text.replace("``", ""))
+    for action in parser._actions:
+        if action.help and action.help is not argparse.SUPPRESS:
+            action.help = action.help.replace("``", "")
+        if isinstance(action, argparse._SubParsersAction):
+            for choice in action._choices_actions:
+                if choice.help:
+                    choice.help = choice.help.replace("``", "")
+            for sub in action.choices.values():
+                _plain(sub)
+
+
+def _cmd_certs(args: argparse.Namespace) -> int:
+    from shared.security.certs_cli import certs_main
+
+    return certs_main(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
-    ap = argparse.ArgumentParser(prog="racestack", description="CiMPCC racing stack for F1TENTH")
+    ap = OneLineArgumentParser(prog="racestack", description="CiMPCC racing stack for F1TENTH")
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = ap.add_subparsers(dest="command", required=True)
 
@@ -119,13 +176,20 @@ def build_parser() -> argparse.ArgumentParser:
     ):
         up = sub.add_parser(name, help=help_text)
         up.add_argument("--config", help="TOML configuration file")
-        up.add_argument("--laps", type=int, default=3)
+        up.add_argument(
+            "--laps",
+            type=positive_int,
+            default=3,
+            help="timed laps to race before the table is printed and the stack stops "
+            "(a whole number >= 1; default 3)",
+        )
         up.add_argument("--run-dir", help="where logs and telemetry go (default runs/<time>)")
         up.add_argument(
             "--serve",
-            type=int,
+            type=tcp_port,
             metavar="PORT",
-            help="also serve live telemetry on 127.0.0.1:PORT for a Rerun viewer",
+            help="also serve live telemetry on 127.0.0.1:PORT for a Rerun viewer "
+            "(the rerun --connect line is printed)",
         )
         up.set_defaults(handler=_cmd_up)
 
@@ -156,22 +220,47 @@ def build_parser() -> argparse.ArgumentParser:
     tune_parser(tune)
     tune.set_defaults(handler=_cmd_tune)
 
-    report = sub.add_parser("report", help="lap table and figures of a recorded run (.rrd)")
+    report = sub.add_parser(  # no help of its own: --help reaches report's parser
+        "report", help="lap table and figures of a recorded run (.rrd)", add_help=False
+    )
     report.add_argument("rest", nargs=argparse.REMAINDER, help="RUN.rrd or run folder, options")
     report.set_defaults(handler=_cmd_report)
+
+    from shared.track.cli import build_parser as track_parser
+
+    track = sub.add_parser(
+        "track", help="a track (F1TENTH centreline CSV + PNG) from a SLAM occupancy map"
+    )
+    track_parser(track)
+    track.set_defaults(handler=_cmd_track)
+
+    from shared.security.certs_cli import certs_parser
+
+    certs = sub.add_parser("certs", help="the secure profile's local CA and certificates")
+    certs_parser(certs)
+    certs.set_defaults(handler=_cmd_certs)
 
     laps = sub.add_parser("laps", help="planner vs its own kinematic model, lap times")
     laps.add_argument("--config", help="TOML configuration file")
     laps.add_argument("--track", help="built-in name, folder or centreline file")
-    laps.add_argument("--method", choices=["cimpcc", "mpcc", "raceline"])
-    laps.add_argument("--laps", type=int, default=2)
+    laps.add_argument("--method", choices=["cimpcc", "mpcc", "raceline", "cimpcc-line"])
+    laps.add_argument(
+        "--laps", type=positive_int, default=2, help="laps to race (a whole number >= 1)"
+    )
     laps.set_defaults(handler=_cmd_laps)
+    _plain(ap)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``racestack`` command; returns the exit code."""
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args, unknown = ap.parse_known_args(argv)
+    if args.command == "report":  # all after the word is report's own (--help included)
+        args.rest = argv[argv.index("report") + 1 :]
+    elif unknown:
+        ap.parse_args(argv)  # the one-line error naming them
     if args.command not in ("run", "report"):
         logging.basicConfig(
             level=logging.DEBUG if args.verbose else logging.INFO,

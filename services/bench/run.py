@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from services.bench.closed_loop import LoopOptions, run_method
+from services.bench.estimation import ESTIMATORS
 from services.bench.figures import write_figures
 from services.bench.table import format_paper_table, format_table
 from services.planner import (
@@ -47,7 +48,13 @@ from services.planner import (
 from services.tune import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.planner import MethodWeights
-from shared.evaluation import MethodRun, results_document, write_results
+from shared.evaluation import (
+    MethodRun,
+    ReferenceLine,
+    paper_table_applies,
+    results_document,
+    write_results,
+)
 from shared.outdir import writable_dir_problem
 from shared.track import Track, TrackError, load_track
 
@@ -83,28 +90,94 @@ def check_out_dir(path: Path) -> None:
 
 
 class ProgressBar:
-    """A one-line text progress bar on stderr."""
+    """Progress of one method on stderr: the laps done and the distance of the lap being
+    driven (the out lap first: the start is just past the line).
 
-    def __init__(self, label: str, stream=sys.stderr) -> None:
+    On a terminal one bar is rewritten in place (at most every ``TTY_PERIOD_S``); else
+    (a log file, a pipe) a plain line at each completed lap and every ``LINE_PERIOD_S``
+    of wall time, so a long lap (Monza: 446 m) is not minutes of silence.
+    """
+
+    TTY_PERIOD_S = 0.2
+    LINE_PERIOD_S = 10.0
+
+    def __init__(
+        self, label: str, stream=None, length_m: float = 0.0, total: int = 0
+    ) -> None:
         self.label = label
-        self.stream = stream
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.length_m = length_m
         self.t0 = time.perf_counter()
+        self._shown = self.t0
+        self.done = 0
+        self.total = total  #: laps to drive (0: told by the first call)
+        self.s_m = 0.0
+        self.crossings = 0  #: start-line crossings so far (0: still in the out lap)
+        self._s_last: float | None = None
+        self._open = False
+
+    def _text(self) -> str:
+        width = 30
+        filled = int(width * self.done / max(self.total, 1))
+        bar = "#" * filled + "." * (width - filled)
+        where = ""
+        if self.length_m > 0 and self.done < max(self.total, 1):
+            lap = "out lap" if self.crossings == 0 else f"lap {self.done + 1}"
+            where = f", {lap} {self.s_m:.0f}/{self.length_m:.0f} m"
+        return (f"{self.label:<28} [{bar}] {self.done}/{self.total} laps{where} "
+                f"{time.perf_counter() - self.t0:5.1f} s")
+
+    def _write(self, end: bool = False) -> None:
+        if self.tty:
+            self.stream.write("\r\033[K" + self._text() + ("\n" if end else ""))
+            self._open = not end
+        else:
+            self.stream.write(self._text() + "\n")
+        self.stream.flush()
 
     def __call__(self, done: int, total: int) -> None:
-        width = 30
-        filled = int(width * done / max(total, 1))
-        bar = "#" * filled + "." * (width - filled)
-        self.stream.write(
-            f"\r{self.label:<28} [{bar}] {done}/{total} laps {time.perf_counter() - self.t0:5.1f} s"
-        )
-        if done >= total:
-            self.stream.write("\n")
-        self.stream.flush()
+        """A lap completed: `done` of `total`."""
+        self.done, self.total = done, total
+        self.s_m = 0.0  # the next lap starts at the line
+        self._shown = time.perf_counter()
+        self._write(end=done >= total)
+
+    def at(self, s_m: float) -> None:
+        """The car's progress along the centreline now [m] (called every tick)."""
+        L = self.length_m
+        if self._s_last is not None and L > 0 and s_m < self._s_last - 0.5 * L:
+            self.crossings += 1
+        self._s_last = self.s_m = s_m
+        now = time.perf_counter()
+        if now - self._shown >= (self.TTY_PERIOD_S if self.tty else self.LINE_PERIOD_S):
+            self._shown = now
+            self._write()
 
     def close(self) -> None:
         """End the line."""
-        self.stream.write("\n")
-        self.stream.flush()
+        if self.tty and self._open:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._open = False
+
+
+class _Watched:
+    """A planner that tells a ``ProgressBar`` the progress of every step (all else is the
+    planner's own)."""
+
+    def __init__(self, planner: PlannerLike, bar: ProgressBar) -> None:
+        object.__setattr__(self, "_planner", planner)
+        object.__setattr__(self, "_bar", bar)
+
+    def __getattr__(self, name: str):
+        return getattr(self._planner, name)
+
+    def step(self, *args, **kwargs):
+        """The planner's ``step``; its result's progress goes to the bar."""
+        res = self._planner.step(*args, **kwargs)
+        self._bar.at(float(res.s_m))
+        return res
 
 
 def mpcc_weights_for(base: MethodWeights, v_p_ref: float) -> MethodWeights:
@@ -124,10 +197,11 @@ def sweep_mpcc(
     rows = []
     for v in values:
         planner.weights = mpcc_weights_for(cfg.planner.mpcc, v)
-        bar = ProgressBar(f"mpcc-tuned sweep v_p={v:.2f}")
+        bar = ProgressBar(f"mpcc-tuned sweep v_p={v:.2f}", length_m=track.length_m,
+                          total=sweep_laps)
         run = run_method(
             "sweep",
-            planner,
+            _Watched(planner, bar),
             track,
             cfg.simulator,
             LoopOptions(**{**opts.__dict__, "laps": sweep_laps}),
@@ -155,10 +229,13 @@ def sweep_mpcc(
     return best["v_p_ref_mps"], rows
 
 
-def min_time_reference(track: Track, cfg: RacestackConfig) -> dict | None:
+def min_time_reference(
+    track: Track, cfg: RacestackConfig, lines: list[ReferenceLine] | None = None
+) -> dict | None:
     """The ``reference`` of results.json: the minimum-time lap of the simulated car on
     `track` at the planners' top speed (cached per track and car), or None (with a line
-    on stderr) when the track allows none."""
+    on stderr) when the track allows none. Its line for the figures is appended to
+    `lines` (when given)."""
     settings = MinTimeSettings(v_max_mps=cfg.planner.cimpcc.v_up_mps[0])
     print("minimum-time reference lap (solved once per track and car, then cached) ...",
           file=sys.stderr)
@@ -167,6 +244,10 @@ def min_time_reference(track: Track, cfg: RacestackConfig) -> dict | None:
     except MinTimeError as exc:
         print(f"no minimum-time reference: {exc}", file=sys.stderr)
         return None
+    if lines is not None:
+        s_m, _ = track.project(np.stack([lap.x_m, lap.y_m], axis=1))
+        lines.append(ReferenceLine(lap.lap_time_s, np.asarray(lap.x_m), np.asarray(lap.y_m),
+                                   np.mod(s_m, track.length_m), np.asarray(lap.v_mps)))
     return {
         "min_time_lap_s": lap.lap_time_s,
         "v_max_mps": lap.v_max_mps,
@@ -199,8 +280,9 @@ def run_bench(
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     ref_doc = None
+    ref_lines: list[ReferenceLine] = []
     if reference:
-        ref_doc = min_time_reference(track, cfg)
+        ref_doc = min_time_reference(track, cfg, ref_lines)
         timings["min-time reference"] = time.perf_counter() - t_start
     base = Planner(track, cfg.planner, cfg.curvature)
     # built first: a track that allows no raceline is an error before anything races
@@ -247,9 +329,10 @@ def run_bench(
             planner.weights = mpcc_weights_for(cfg.planner.mpcc, chosen)
             extra["u_ref"] = list(planner.weights.u_ref)
             t0 = time.perf_counter()
-        bar = ProgressBar(name)
+        bar = ProgressBar(name, length_m=track.length_m, total=laps)
         run = run_method(
-            name, planner, track, cfg.simulator, LoopOptions(**{**opts.__dict__, "laps": laps}), bar
+            name, _Watched(planner, bar), track, cfg.simulator,
+            LoopOptions(**{**opts.__dict__, "laps": laps}), bar
         )
         if run.completed_laps < laps:
             bar.close()
@@ -274,7 +357,8 @@ def run_bench(
     doc = results_document(track.name, track.length_m, runs, meta, reference=ref_doc)
     write_results(out_dir / "results.json", doc)
     if figures:
-        write_figures(out_dir, track, base.profile, runs)
+        write_figures(out_dir, track, base.profile, runs,
+                      reference=ref_lines[0] if ref_lines else None)
     return doc
 
 
@@ -294,7 +378,13 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
         default="fixed",
         help="compute delay before a command acts: fixed (default) or measured",
     )
-    ap.add_argument("--compute-delay-ms", type=float, default=2.0)
+    ap.add_argument(
+        "--compute-delay-ms",
+        type=float,
+        default=2.0,
+        help="with --delay fixed: how long the previous command still acts after each "
+        "planner tick [ms] (0 .. the planner period; default 2)",
+    )
     ap.add_argument(
         "--sweep",
         default=",".join(f"{v:g}" for v in DEFAULT_SWEEP_MPS),
@@ -303,11 +393,21 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap.add_argument("--sweep-laps", type=int, default=3)
     ap.add_argument("--tuned", help="cimpcc-tuned: a tuned configuration (racestack tune's "
                     "best.toml); default: the configuration's own [planner.cimpcc]")
-    ap.add_argument("--no-figures", action="store_true")
+    ap.add_argument(
+        "--no-figures", action="store_true", help="write results.json only, no PNG figures"
+    )
     ap.add_argument(
         "--no-reference",
         action="store_true",
         help="skip the minimum-time reference lap (solved once per track and car, cached)",
+    )
+    ap.add_argument(
+        "--estimator",
+        choices=list(ESTIMATORS),
+        default="truth",
+        help="the pose the planner sees: truth (default), ekf (the simulator's pose sensor, "
+        "IMU and odometry through the bridge's EKF) or lidar (its lidar through the particle "
+        "filter into the EKF)",
     )
     return ap
 
@@ -341,7 +441,8 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
     if tuned is not None:
         print(tuned.describe(), file=sys.stderr)
     opts = LoopOptions(
-        laps=args.laps, delay_mode=args.delay, compute_delay_s=args.compute_delay_ms / 1e3
+        laps=args.laps, delay_mode=args.delay, compute_delay_s=args.compute_delay_ms / 1e3,
+        estimator=getattr(args, "estimator", "truth"), localization=cfg.localization,
     )
     try:
         doc = run_bench(
@@ -361,8 +462,9 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
         print(f"racestack bench: error: {exc}", file=sys.stderr)
         return 2
     print(format_table(doc))
-    print()
-    print(format_paper_table())
+    if paper_table_applies(doc["track"]):  # the paper's numbers are of map416 only
+        print()
+        print(format_paper_table())
     wall = doc["meta"]["wall_time_s"]
     print("\nwall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in wall.items()))
     if "mpcc-tuned" in doc["methods"]:
@@ -371,6 +473,14 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
             f"mpcc-tuned: chosen v_p ref {m['chosen_v_p_ref_mps']} m/s "
             f"(u_ref {m['u_ref']}) from a {m['sweep_laps']}-lap sweep"
         )
+    for name, m in doc["methods"].items():
+        if loc := m.get("localisation"):
+            print(
+                f"localisation {name} ({loc['estimator']}): position RMS "
+                f"{100 * (loc['rms_position_m'] or 0):.2f} cm, max "
+                f"{100 * (loc['max_position_m'] or 0):.2f} cm, yaw RMS "
+                f"{loc['rms_yaw_deg'] or 0:.2f} deg, invalid ticks {loc['invalid_ticks']}"
+            )
     print(f"results: {out / 'results.json'}" + ("" if args.no_figures else f", figures in {out}"))
     return 0
 

@@ -38,11 +38,11 @@ thread is the real-time loop (``serve``), which also polls the drop and fault re
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
@@ -69,8 +69,10 @@ from shared.messages import (
     SimTruth,
 )
 from shared.service import Service, publishes, subscribes
-from shared.track import OccupancyGrid, Track, load_ros_map, load_track, rasterize_track
+from shared.track import Track, load_track, occupancy_for
 
+#: With -v, the simulator's state is logged every this long of simulated time [s].
+DEBUG_PERIOD_S = 2.0
 #: Rate of ``sim/truth`` [Hz].
 TRUTH_RATE_HZ = 50.0
 #: Where the car starts: this far along from the start line [m] (behind it: timing starts
@@ -85,17 +87,6 @@ FAULT_REPORT_INTERVAL_S = 1.0
 _HALF_PI = 0.5 * math.pi
 #: Slack on the core's canonical slip range [rad] (its own rounding).
 _SLIP_SLACK_RAD = 1e-9
-
-
-def occupancy_for(track: Track) -> OccupancyGrid:
-    """The track's ROS map if its folder has one, else a grid rasterised from its boundaries."""
-    src = Path(track.source)
-    folder = src if src.is_dir() else src.parent
-    if src.exists():
-        maps = sorted(folder.glob("*.yaml"))
-        if maps:
-            return load_ros_map(maps[0])
-    return rasterize_track(track, resolution_m=0.05)
 
 
 class SimulatorService(Service):
@@ -145,7 +136,9 @@ class SimulatorService(Service):
         self.vesc: VescActuation | None = None
         if s.actuation == "fake_vesc":
             self.vesc = VescActuation(s.fake_vesc_link, cfg.vesc)
-        else:
+        #: the vesc_driver polls the fake VESC's IMU: it publishes vehicle/imu, not us
+        self.vesc_imu = self.vesc is not None and cfg.vesc.poll_imu_rate_hz > 0
+        if self.vesc is None:
             self.subscribe(DRIVE_CMD, self.commands.put)
         #: faults of its own: invalid records (by key) and car-state faults (STATE_FAULT_KEY)
         self.faults = bus.faults
@@ -161,7 +154,12 @@ class SimulatorService(Service):
     @classmethod
     def create(cls, cfg: RacestackConfig, args: argparse.Namespace, bus: Bus) -> SimulatorService:
         """The simulator on the configured track."""
-        return cls(cfg, bus, load_track(cfg.track.source))
+        log = logging.getLogger(cls.__module__)
+        log.info("loading the track %s", cfg.track.source)
+        track = load_track(cfg.track.source)
+        log.info("track %s: %.2f m; building the car and its sensors (lidar at %g Hz)",
+                 track.name, track.length_m, cfg.simulator.lidar.rate_hz)
+        return cls(cfg, bus, track)
 
     def stamp(self, t_sim: float) -> float:
         """Wall-clock stamp [s] of simulation time `t_sim`."""
@@ -239,6 +237,10 @@ class SimulatorService(Service):
         else:
             cmd = self.commands.take()
         if cmd is not None and not (self.paused or self.stopped):
+            if not getattr(self, "_said_first_cmd", False):
+                self._said_first_cmd = True
+                self.log.info("first drive command at t = %.2f s: %.2f m/s, %.3f rad",
+                              self.sim.t_s, cmd.speed_mps, cmd.steering_rad)
             self.sim.set_command(cmd.speed_mps, cmd.steering_rad, self.sim.t_s)
         for ctl in self.controls.drain():
             if ctl.action == SimActionName.RESET:
@@ -255,6 +257,8 @@ class SimulatorService(Service):
         fails validation is counted in ``bus.faults`` and skipped, never raised.
         """
         readings = self.sensors.update(res)
+        if self.vesc is not None:  # the fake VESC's IMU measures the step's truth
+            self.vesc.set_imu(res.state.yaw_rate_radps, res.accel_long_mps2, res.accel_lat_mps2)
         for m in readings.pose:
             self.pub_pose.try_put(
                 stamp_s=self.stamp(m.stamp_s),
@@ -263,7 +267,7 @@ class SimulatorService(Service):
                 yaw_rad=wrap_pi(m.yaw_rad),
                 cov=None,
             )
-        for m in readings.imu:
+        for m in readings.imu if not self.vesc_imu else ():  # else the vesc_driver's
             self.pub_imu.try_put(
                 stamp_s=self.stamp(m.stamp_s),
                 yaw_rate_radps=m.yaw_rate_radps,
@@ -351,6 +355,7 @@ class SimulatorService(Service):
         h = self.cfg.simulator.integration_step_s
         self.t0_wall = self.wall_clock() - self.sim.t_s
         t0_mono = self.clock() - self.sim.t_s
+        next_debug_s = self.sim.t_s
         while not stop.is_set():
             self.report()
             self.handle_inputs()
@@ -360,6 +365,12 @@ class SimulatorService(Service):
                 self.t0_wall += h
                 continue
             res = self.advance(h)  # None: the car was reset (its state left the contract)
+            if self.sim.t_s >= next_debug_s:  # with -v: a line every DEBUG_PERIOD_S
+                next_debug_s = self.sim.t_s + DEBUG_PERIOD_S
+                st = self.sim.state
+                self.log.debug("t = %.1f s: %.2f m/s at s = %.1f m, %d laps, %d overruns",
+                               self.sim.t_s, st.v_mps, self.timer.s_m,
+                               self.timer.laps_completed, self.overruns)
             # publish when the wall clock reaches the new sim time, so no message leaves
             # before the instant its stamp names
             delay = t0_mono + self.sim.t_s - self.clock()

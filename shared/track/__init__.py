@@ -7,10 +7,12 @@ from shared.track.io import (
     DEFAULT_TRACK,
     RacelineTable,
     load_f1tenth_raceline,
+    load_map_track,
     load_track,
+    write_f1tenth_centerline,
     write_f1tenth_raceline,
 )
-from shared.track.occupancy import OccupancyGrid, load_ros_map, rasterize_track
+from shared.track.occupancy import OccupancyGrid, load_ros_map, occupancy_for, rasterize_track
 
 __all__ = [
     "BUILTIN_TRACKS",
@@ -20,8 +22,11 @@ __all__ = [
     "Track",
     "TrackError",
     "load_f1tenth_raceline",
+    "load_map_track",
     "load_ros_map",
     "load_track",
+    "occupancy_for",
     "rasterize_track",
+    "write_f1tenth_centerline",
     "write_f1tenth_raceline",
 ]

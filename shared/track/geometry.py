@@ -309,7 +309,8 @@ def validate_loop(xy: np.ndarray, w_right: np.ndarray, w_left: np.ndarray, sourc
 
     Checks: shape (n, 2) with n >= MIN_POINTS, finite values, positive widths of matching length,
     no repeated consecutive points, closed (closing gap small against the spacing), no
-    self-crossing of the centreline.
+    self-crossing of the centreline. Points in the messages count from 1, as a user reads
+    the rows of the file.
     """
     if xy.ndim != 2 or xy.shape[1] != 2:
         raise TrackError(source, f"centreline must have shape (n, 2), got {xy.shape}")
@@ -318,21 +319,22 @@ def validate_loop(xy: np.ndarray, w_right: np.ndarray, w_left: np.ndarray, sourc
         raise TrackError(source, f"only {n} centreline points; at least {MIN_POINTS} are needed")
     if not np.all(np.isfinite(xy)):
         bad = int(np.flatnonzero(~np.isfinite(xy).all(axis=1))[0])
-        raise TrackError(source, f"non-finite coordinate (NaN or inf) at point {bad}")
+        raise TrackError(source, f"non-finite coordinate (NaN or inf) at point {bad + 1}")
     for label, w in (("right", w_right), ("left", w_left)):
         if w.shape != (n,):
             raise TrackError(source, f"{label} width has {w.size} values for {n} points")
         if not np.all(np.isfinite(w)):
             raise TrackError(
-                source, f"non-finite {label} width at point {int(np.argmax(~np.isfinite(w)))}"
+                source, f"non-finite {label} width at point {int(np.argmax(~np.isfinite(w))) + 1}"
             )
         if np.any(w <= 0.0):
             raise TrackError(
-                source, f"zero or negative {label} width at point {int(np.argmax(w <= 0.0))}"
+                source, f"zero or negative {label} width at point {int(np.argmax(w <= 0.0)) + 1}"
             )
     seg = np.hypot(*np.diff(xy, axis=0).T)
     if np.any(seg <= 1e-9):
-        raise TrackError(source, f"repeated point at index {int(np.argmax(seg <= 1e-9)) + 1}")
+        k = int(np.argmax(seg <= 1e-9))
+        raise TrackError(source, f"point {k + 2} repeats point {k + 1}")
     gap = float(np.hypot(*(xy[0] - xy[-1])))
     median = float(np.median(seg))
     if gap > MAX_CLOSING_GAP_FACTOR * median:
@@ -344,7 +346,11 @@ def validate_loop(xy: np.ndarray, w_right: np.ndarray, w_left: np.ndarray, sourc
     crossing = find_self_crossing(xy)
     if crossing is not None:
         i, j = crossing
-        raise TrackError(source, f"self-crossing loop: segment {i} crosses segment {j}")
+        raise TrackError(
+            source,
+            f"self-crossing loop: the segment from point {i + 1} to {i + 2} crosses the "
+            f"one from point {j + 1} to {j + 2}",
+        )
 
 
 #: Distance below which a point counts as lying on a segment's line [m].

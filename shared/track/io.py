@@ -8,6 +8,9 @@ Formats (see ``docs`` in the README):
   ``*_track_right_waypoints.csv``, each ``x,y`` rows without header, the last row repeating the
   first. Widths are the distances from each centre point to its left / right points.
 - A folder holding either of the above (F1TENTH ``<T>/<T>_centerline.csv`` or a triple).
+- A ROS map_server map ``MAP.yaml`` (``load_map_track``): the centreline and widths are
+  extracted from its free space (``shared.track.from_map``); written back with
+  ``write_f1tenth_centerline``.
 - ``builtin:NAME`` or a bare built-in name for the tracks shipped in the package.
 - F1TENTH raceline CSV (``load_f1tenth_raceline`` / ``write_f1tenth_raceline``): two
   comment lines, then ``# s_m; x_m; y_m; psi_rad; kappa_radpm; vx_mps; ax_mps2``, then
@@ -168,7 +171,7 @@ def load_builtin(name: str) -> Track:
 
 
 def load_track(spec: str | Path) -> Track:
-    """Load a track from a built-in name, ``builtin:NAME``, a folder or a file.
+    """Load a track from a built-in name, ``builtin:NAME``, a folder, a file or a ROS map.
 
     A file may be an F1TENTH centreline CSV or the centre file of a CiMPCC triple (its left and
     right files are found beside it). Raises TrackError naming the spec and the problem.
@@ -196,7 +199,62 @@ def load_track(spec: str | Path) -> Track:
         )
     if path.suffix.lower() == ".csv":
         return load_f1tenth_centerline(path)
-    raise TrackError(text, "unsupported track file (expected a .csv centreline or a folder)")
+    if path.suffix.lower() in (".yaml", ".yml"):
+        return load_map_track(path)
+    raise TrackError(
+        text, "unsupported track file (expected a .csv centreline, a ROS map .yaml or a folder)"
+    )
+
+
+def published_centerline_beside(map_yaml: str | Path) -> tuple[Path, np.ndarray] | None:
+    """The centreline published beside a ROS map, if any: ``<stem>_centerline.csv`` (the
+    map's stem without ``_map``) or a CiMPCC ``*_track_centerline_waypoints.csv`` in its
+    folder, as (its path, its (n, 2) points [m] in its driving order, not validated as a
+    Track); None when there is none or it does not read."""
+    path = Path(map_yaml)
+    stem = path.stem.removesuffix("_map")
+    f1tenth = path.with_name(f"{stem}_centerline.csv")
+    candidates = [(f1tenth, 4)] if f1tenth.is_file() else []
+    candidates += [(p, 2) for p in sorted(path.parent.glob("*_track_centerline_waypoints.csv"))]
+    for candidate, ncols in candidates:
+        try:
+            xy = _drop_closing_duplicate(_read_numeric_rows(candidate, ",", ncols)[:, :2])
+        except TrackError:
+            return None
+        return (candidate, xy) if xy.shape[0] >= 3 and np.isfinite(xy).all() else None
+    return None
+
+
+def load_map_track(map_yaml: str | Path, options=None) -> Track:
+    """The track extracted from a ROS map_server map (``shared.track.from_map``).
+
+    `options` is a ``MapTrackOptions``; None: the defaults, with the driving direction of
+    the centreline published beside the map (``published_centerline_beside``) if there is
+    one, else counter-clockwise. Raises TrackError naming the map and the problem.
+    """
+    from shared.track.from_map import MapTrackOptions, signed_area, track_from_grid
+    from shared.track.occupancy import load_ros_map
+
+    path = Path(map_yaml)
+    if options is None:
+        published = published_centerline_beside(path)
+        direction = "ccw" if published is None or signed_area(published[1]) > 0 else "cw"
+        options = MapTrackOptions(direction=direction)
+    grid = load_ros_map(path)
+    name = path.stem.removesuffix("_map")
+    return track_from_grid(grid, options, name=name)
+
+
+def write_f1tenth_centerline(path: str | Path, track: Track) -> None:
+    """Write `track` as an F1TENTH centreline CSV (``# x_m, y_m, w_tr_right_m, w_tr_left_m``,
+    6 decimals [m], the loop closed implicitly), atomically (a temporary file, then a rename)."""
+    path = Path(path)
+    lines = ["# " + ", ".join(F1TENTH_COLUMNS)]
+    rows = np.column_stack([track.xy, track.w_right_m, track.w_left_m])
+    lines += [", ".join(f"{v:.6f}" for v in row) for row in rows]
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    tmp.replace(path)
 
 
 #: Columns of the F1TENTH raceline CSV (``<T>_raceline.csv``), in order.

@@ -19,6 +19,7 @@ from services.launcher.up import Launcher
 from services.lidar_driver.service import LidarService
 from services.localization_bridge.service import BridgeService
 from services.planner.service import PlannerShell
+from services.ros2_gateway.service import Ros2GatewayService
 from services.router.service import Router
 from services.simulator.service import SimulatorService
 from services.telemetry.service import TelemetryService
@@ -38,6 +39,7 @@ PARTICIPANTS: tuple[type[Service], ...] = (
     Router,
     Launcher,
     LidarService,
+    Ros2GatewayService,
 )
 ALIVE_ROW = f"{ALIVE}/<service>"
 COLUMNS = ("key", "message", "fields", "rate", "qos", "publishers", "subscribers")
@@ -115,3 +117,94 @@ def test_every_port_is_a_key_of_the_contract_with_its_type() -> None:
     for svc in PARTICIPANTS:
         for port in svc.PORTS:
             assert REGISTRY[TOPIC_TYPES[port.suffix]] is port.msg_type, (svc.NAME, port)
+
+
+# --------------------------------------------------------------------------- validation limits
+def _validation_rows() -> list[str]:
+    """The rows of the "Quantity | Rule" table under "## Validation" of the contract doc."""
+    text = (ROOT / "docs/message-contract.md").read_text(encoding="utf-8")
+    lines = text[text.index("## Validation"):].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| Quantity"))
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append(line)
+    return rows
+
+
+def _spellings(value: float) -> set[str]:
+    """How the docs may write the limit |value|: 1000, 1,000, 1e3, 2^31, 4 MiB, pi, 2 pi."""
+    import math
+
+    a = abs(float(value))
+    out = {name for k, name in ((1, "pi"), (2, "2 pi")) if math.isclose(a, k * math.pi)}
+    if a.is_integer():
+        n = int(a)
+        out |= {str(n), f"{n:,}"}
+        if n >= 10 and 10 ** round(math.log10(n)) == n:
+            out.add(f"1e{round(math.log10(n))}")
+        for m in (n, n + 1):
+            if m > 2 and m & (m - 1) == 0:
+                out.add(f"2^{m.bit_length() - 1}")
+        if n >= 1 << 20 and n % (1 << 20) == 0:
+            out.add(f"{n >> 20} MiB")
+    elif not out:
+        out.add(f"{a:g}")
+    return out
+
+
+def _mentions(row: str, value: float) -> bool:
+    return any(re.search(rf"(?<![\d.,^]){re.escape(s)}(?![\d.]|,\d|e\d)", row)
+               for s in _spellings(value))
+
+
+def _field_limits() -> list[tuple[str, str, float]]:
+    """(message, field, limit) of every numeric bound a record field declares: the upper
+    bound, a lower bound that is neither 0 nor minus the upper one, string and array
+    lengths, array value bounds."""
+    import math
+
+    out: list[tuple[str, str, float]] = []
+    for cls in REGISTRY.values():
+        for f in cls.fields_info():
+            bounds: list[float] = []
+            t = f.type
+            le, ge = getattr(t, "le", None), getattr(t, "ge", None)
+            if le is not None:
+                bounds.append(le)
+            if ge is not None and ge != 0 and (le is None or ge != -le):
+                bounds.append(ge)
+            if getattr(t, "max_length", None) is not None:
+                bounds.append(t.max_length)
+            if f.array is not None:
+                bounds.append(f.array.max_len)
+                bounds += [b for b in (f.array.lo, f.array.hi) if b and math.isfinite(b)]
+            out += [(cls.__name__, f.name, b) for b in bounds]
+    return out
+
+
+def test_every_field_limit_is_in_the_validation_table() -> None:
+    rows = _validation_rows()
+    missing = [
+        f"{msg}.{name}: {limit:g}"
+        for msg, name, limit in _field_limits()
+        if not any(f"`{name}`" in row and _mentions(row, limit) for row in rows)
+    ]
+    assert not missing, "docs/message-contract.md Validation table lacks:\n" + "\n".join(missing)
+
+
+def test_every_max_constant_is_in_the_validation_table() -> None:
+    """Each ``MAX_*`` limit of the records and the codec is named, with its value."""
+    from shared.messages import codec, records
+
+    rows = _validation_rows()
+    missing = []
+    for module in (records, codec):
+        for name in dir(module):
+            value = getattr(module, name)
+            if not name.startswith("MAX_") or not isinstance(value, int | float):
+                continue
+            if not any(f"`{name}`" in row and _mentions(row, value) for row in rows):
+                missing.append(f"{module.__name__}.{name} = {value}")
+    assert not missing, "docs/message-contract.md Validation table lacks:\n" + "\n".join(missing)

@@ -31,6 +31,7 @@ PROCESS_SERVICES = frozenset(
         "telemetry",
         "router",
         "lidar_driver",
+        "ros2_gateway",
     }
 )
 #: Tools that compose services in one process (``cli`` is ``services/cli.py``).
