@@ -997,9 +997,10 @@ class DropReporter:
     racestack/car0/state not_msgpack x3`` for invalid payloads received, an error such as
     ``own faults: 2 (total 2), not published: racestack/car0/sim/truth out_of_range x2``
     for records of its own that failed validation (and other faults it recovered from), and
-    a warning such as ``dropped 5 valid messages (total 9): racestack/car0/vehicle/pose
-    overwritten x5`` for valid records a channel subscription never handed to its consumer
-    (``Bus.displaced``: pushed out by a newer one, or stale). This makes the counts visible
+    ``dropped 5 valid messages (total 9): racestack/car0/vehicle/pose overwritten x5`` for
+    valid records a channel subscription never handed to its consumer (``Bus.displaced``:
+    pushed out by a newer one, at info level, since a newest-value channel is made for it;
+    stale or queue-full drops, a warning). This makes the counts visible
     to telemetry, tests and operators.
     """
 
@@ -1067,11 +1068,15 @@ class DropReporter:
             )
             published = True
         displaced = self._bus.displaced.snapshot() if hasattr(self._bus, "displaced") else {}
-        n, parts = self._growth(displaced, self._last_displaced)
+        last_displaced = self._last_displaced
+        n, parts = self._growth(displaced, last_displaced)
         if n:
             self._last_displaced = displaced
             total = sum(displaced.values())
-            self._publish(LogLevelName.WARNING,
-                          f"dropped {n} valid messages (total {total}): {parts}")
+            grew = {r for (k, r), c in displaced.items() if c > last_displaced.get((k, r), 0)}
+            # a newest-value channel replacing a value its consumer had no time for is the
+            # design (counted, said at info); stale or lost-from-a-queue records are not
+            level = LogLevelName.INFO if grew <= {"overwritten"} else LogLevelName.WARNING
+            self._publish(level, f"dropped {n} valid messages (total {total}): {parts}")
             published = True
         return published
