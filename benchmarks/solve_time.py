@@ -41,7 +41,10 @@ def run(
     planner = Planner(track, settings)
     setup_s = time.perf_counter() - t0
     # the planner's own model (cimpcc, mpcc: the paper's)
-    plant = ModelPlant(track, planner.problem.step)
+    # its state: the pose and progress, and (cimpcc-line) the car's speed, from standstill
+    x0 = np.zeros(len(planner.problem.model_index))
+    x0[:3] = (*track.xy[0], track.heading_rad[0])
+    plant = ModelPlant(track, planner.problem.step, x0)
     got = race(planner, plant, None, max_ticks=steps)
     t = np.asarray(got.solve_times_s) * 1e3
     return {

@@ -41,11 +41,13 @@ def stage_cost(
     par: dict[str, ca.SX],
     dt_s: float,
     first_stage: bool,
+    v_l: ca.SX | None = None,
 ) -> ca.SX:
     """Cost of one stage (see the module docstring).
 
     `beta`, `v_low`, `v_up` ([v_l, v_p] [m/s]) are the stage's; `par` holds the named
-    parameter blocks of the weights.
+    parameter blocks of the weights. `v_l`: the speed the velocity pulls weigh in place of
+    the input's ``v_l`` (a model with the car's speed loop: the speed the stage reaches).
     """
     q = par["q"]
     cost = q[0] * e_con**2 + q[1] * e_lag**2
@@ -53,7 +55,7 @@ def stage_cost(
     du = _quad(u - u_prev, par["r1"])
     cost += par["w_du0"] * du if first_stage else du
     cost += _quad(u - par["u_ref"], par["r2"])
-    v = ca.vertcat(u[U.V_L], u[U.V_P])
+    v = ca.vertcat(u[U.V_L] if v_l is None else v_l, u[U.V_P])
     cost += (1 - beta) * _quad(v - v_low, par["r3"])
     cost += beta * _quad(v - v_up, par["r3"])
     cost += par["slack_w"][0] * slack + par["slack_w"][1] * slack**2

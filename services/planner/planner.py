@@ -34,8 +34,8 @@ import numpy as np
 
 from services.planner.mintime import MinTimeSettings
 from services.planner.mintime_store import min_time_lap
-from services.planner.model import NU, S, SlipModel, U, discretise
-from services.planner.problem import UA, XA, OcpProblem, build_problem
+from services.planner.model import NU, NX, S, SlipModel, SpeedLoop, U, discretise
+from services.planner.problem import UA, XA, XA_SPEED, OcpProblem, build_problem
 from services.planner.recovery import Recovery, RecoveryCommand
 from services.planner.reference import ReferencePath, centreline_path, min_time_path
 from services.planner.solver import SolverHandle, make_solver
@@ -132,11 +132,13 @@ class _Prepared:
         beta: (N,) per-stage beta at the shifted progress, or None (beta at the car only).
         v_ref: (N, 2) per-stage velocity reference [v_l, v_p] [m/s] at the shifted
             progress (paths with a speed profile), else None.
+        drag: (N,) per-stage drag [m/s^2] (a model with the car's speed), else None.
     """
 
     w: np.ndarray
     beta: np.ndarray | None
     v_ref: np.ndarray | None = None
+    drag: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -231,11 +233,26 @@ class Planner:
                     if self.method == CIMPCC_LINE
                     else centreline_path(track)
                 )
-            slip = None
-            if self.method == CIMPCC_LINE and settings.cimpcc_line.model == "kinematic_slip":
-                slip = SlipModel.for_vehicle(vehicle or F1TENTH_GYM)
-            problem = build_problem(reference, problem_settings(settings, self.method), slip)
+            slip = speed_loop = None
+            model = settings.cimpcc_line.model
+            with_speed = self.method == CIMPCC_LINE and model == "kinematic_slip_speed"
+            if self.method == CIMPCC_LINE and model != "kinematic":
+                slip = SlipModel.for_vehicle(vehicle or F1TENTH_GYM, near_limit=with_speed)
+            if with_speed:
+                speed_loop = SpeedLoop.for_vehicle(vehicle or F1TENTH_GYM)
+            problem = build_problem(
+                reference,
+                problem_settings(settings, self.method),
+                slip,
+                speed_loop,
+                settings.cimpcc_line.v_max_mps if with_speed else None,
+            )
         self.problem = problem
+        #: the car's speed loop of a model that holds the car's speed (None: no speed state)
+        self._speed_loop = (
+            SpeedLoop.for_vehicle(vehicle or F1TENTH_GYM) if problem.has_speed else None
+        )
+        self._model_index = np.array(problem.model_index)
         #: what the problem contours; its progress is the problem's s
         self.reference: ReferencePath = problem.reference
         self.path: Track = self.reference.path
@@ -281,6 +298,8 @@ class Planner:
         self._failures = 0
         self._prepared: _Prepared | None = None
         self._still_ticks = 0  #: solved ticks in a row that commanded almost no speed
+        self._pose_prev: tuple[float, float, float] | None = None
+        self._v_est = 0.0  #: the car's estimated speed at the last pose [m/s] (speed model)
         self.recovery.reset()
 
     @property
@@ -303,15 +322,16 @@ class Planner:
         xs_prev, us_prev = pr.unpack(self._w_prev)
         xs = np.vstack([xs_prev[1:], xs_prev[-1:]])
         us = np.vstack([us_prev[1:], us_prev[-1:]])
-        xs[-1, : len(S)] = np.asarray(pr.step(xs[-2, : len(S)], us[-1, :NU])).reshape(-1)
-        xs[-1, len(S) :] = us[-1, :NU]
+        mi = self._model_index
+        xs[-1, mi] = np.asarray(pr.step(xs[-2, mi], us[-1, :NU])).reshape(-1)
+        xs[-1, NX : NX + NU] = us[-1, :NU]
         us[:, UA.SLACK] = 0.0
-        beta = v_ref = None
+        beta = v_ref = drag = None
         if self.reference.speed is not None:  # periodic in s: no lap alignment needed
-            beta, v_ref = self._speed_refs(xs[: pr.horizon, XA.PROGRESS])
+            beta, v_ref, drag = self._speed_refs(xs[:, XA.PROGRESS])
         elif self.settings.beta_mode == "per_stage":
             beta = np.asarray(self.profile.beta_at(xs[: pr.horizon, XA.PROGRESS]), dtype=float)
-        self._prepared = _Prepared(pr.pack(xs, us), beta, v_ref)
+        self._prepared = _Prepared(pr.pack(xs, us), beta, v_ref, drag)
 
     def step(
         self,
@@ -340,9 +360,11 @@ class Planner:
                 x_m, y_m, self._s_prev, fallback_window_m=PROJECTION_WINDOW_M
             )
         self._s_prev = s0
-        x0 = np.empty(len(XA))
+        x0 = np.empty(pr.nxa)
         x0[XA.X], x0[XA.Y], x0[XA.PHI], x0[XA.PROGRESS] = x_m, y_m, yaw_rad, s0
         x0[XA.V_L_PREV : XA.V_P_PREV + 1] = self._u_applied
+        if self._speed_loop is not None:
+            x0[XA_SPEED] = self._estimate_speed(x_m, y_m, yaw_rad)
         was_recovering = self.recovery.active
         stalled = self._still_ticks * self.settings.dt_s
         rec = self.recovery.update(x_m, y_m, yaw_rad, s0, e0, stalled)
@@ -357,22 +379,24 @@ class Planner:
             x0[XA.PROGRESS] = self._s_prev = s0
         if not self.reference.is_centreline:
             if self._lead is not None:  # the pose when this plan's first input acts
-                x0[: len(S)] = np.asarray(self._lead(x0[: len(S)], self._u_applied)).reshape(-1)
+                mi = self._model_index
+                x0[mi] = np.asarray(self._lead(x0[mi], self._u_applied)).reshape(-1)
             x0[XA.PROGRESS] = self._path_progress(float(x0[XA.X]), float(x0[XA.Y]), s0)
 
         self.prepare()
         prep, self._prepared = self._prepared, None
-        v_ref = None
+        v_ref = drag = None
         if prep is None:
             xs_ws, us_ws = self._cold_guess(x0)
-            w0, beta, s_pred = pr.pack(xs_ws, us_ws), None, xs_ws[:N, XA.PROGRESS]
+            w0, beta, s_pred = pr.pack(xs_ws, us_ws), None, xs_ws[:, XA.PROGRESS]
         else:
-            w0, beta, v_ref, s_pred = self._align(prep.w, x0), prep.beta, prep.v_ref, None
+            w0, beta, s_pred = self._align(prep.w, x0), prep.beta, None
+            v_ref, drag = prep.v_ref, prep.drag
         if self.reference.speed is not None and v_ref is None:
-            beta, v_ref = self._speed_refs(s_pred)
+            beta, v_ref, drag = self._speed_refs(s_pred)
         if beta is None:
-            beta = self._beta(s0, s_pred)
-        p = self._parameters(x0, beta, v_ref)
+            beta = self._beta(s0, None if s_pred is None else s_pred[:N])
+        p = self._parameters(x0, beta, v_ref, drag)
 
         t0 = self._timer()
         try:
@@ -482,13 +506,46 @@ class Planner:
         self._s_path_prev = s
         return s
 
-    def _speed_refs(self, s_pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(beta (N,), v_ref (N, 2)) of a path with a speed profile: beta = 1 and both
-        speeds [v_l, v_p] [m/s] the profile's command at each predicted progress [m]."""
+    def _speed_refs(
+        self, s_pred: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(beta (N,), v_ref (N, 2), drag (N,) or None) of a path with a speed profile
+        from the predicted progress of the N+1 stages `s_pred` [m]: beta = 1 and both
+        speeds [v_l, v_p] [m/s] the profile's command at stage k's progress; with the car's
+        speed in the model (its ``v_l`` pull weighs the speed of stage k+1), the profile's
+        speed at stage k+1, for v_p the mean of the profile's speeds at stages k and k+1,
+        and the profile's drag [m/s^2] at stage k."""
         speed = self.reference.speed
         assert speed is not None  # only called for paths with a profile
-        v = np.asarray(speed.command_at(s_pred), dtype=float)
-        return np.ones(self.horizon), np.column_stack([v, v])
+        N = self.horizon
+        if self._speed_loop is None:
+            v = np.asarray(speed.command_at(s_pred[:N]), dtype=float)
+            return np.ones(N), np.column_stack([v, v]), None
+        v = np.asarray(speed.speed_at(s_pred[: N + 1]), dtype=float)
+        drag = np.asarray(speed.drag_at(s_pred[:N]), dtype=float)
+        return np.ones(N), np.column_stack([v[1:], (v[:-1] + v[1:]) / 2]), drag
+
+    def _estimate_speed(self, x_m: float, y_m: float, yaw_rad: float) -> float:
+        """The car's speed [m/s] at this pose (a model with its speed loop; the pose
+        carries no speed): the pose's displacement since the last one along the mean
+        heading over the period ``dt_s`` (the mean speed over the period, ``v_mean``), plus
+        what the speed loop, driven by the last command, adds from the period's mean to its
+        end: ``v = d / Ts + (v_end - v_mean)`` with ``(v_end, v_mean)`` the loop's
+        prediction from the last estimate. No previous pose: the prediction alone (0 at
+        the start). Clipped to the speed command's bounds."""
+        loop = self._speed_loop
+        assert loop is not None
+        dt = self.settings.dt_s
+        v_end, v_mean = loop.advance(self._v_est, float(self._u_applied[U.V_L]), dt)
+        v = v_end
+        if self._pose_prev is not None:
+            x_p, y_p, yaw_p = self._pose_prev
+            heading = yaw_p + math.remainder(yaw_rad - yaw_p, math.tau) / 2
+            d = (x_m - x_p) * math.cos(heading) + (y_m - y_p) * math.sin(heading)
+            v = d / dt + (v_end - v_mean)
+        self._pose_prev = (x_m, y_m, yaw_rad)
+        self._v_est = float(np.clip(v, self._u_lo[U.V_L], self._u_hi[U.V_L]))
+        return self._v_est
 
     def _beta(self, s0: float, s_pred: np.ndarray | None) -> np.ndarray:
         """beta per stage (N,): all g(NSC(s0)) (paper) or g(NSC(s_k)) of the warm start."""
@@ -497,11 +554,16 @@ class Planner:
         return np.full(self.horizon, float(self.profile.beta_at(s0)))
 
     def _parameters(
-        self, x0: np.ndarray, beta: np.ndarray, v_ref: np.ndarray | None = None
+        self,
+        x0: np.ndarray,
+        beta: np.ndarray,
+        v_ref: np.ndarray | None = None,
+        drag: np.ndarray | None = None,
     ) -> np.ndarray:
         """The parameter vector: weights packed once per weights object, x0 and beta set,
         and with `v_ref` (N, 2) [m/s] both per-stage velocity references (``cimpcc-line``;
-        else the weights' v_up and v_low at every stage)."""
+        else the weights' v_up and v_low at every stage); `drag` (N,) [m/s^2] the per-stage
+        drag of a model with the car's speed."""
         layout = self.problem.layout
         if self._p_cache is None or self._p_cache[0] is not self.weights:
             w_du0 = 1.0 if self.settings.delta_u_on_applied else 0.0
@@ -512,21 +574,23 @@ class Planner:
         p[layout.slices["beta"]] = beta
         if v_ref is not None:
             p[layout.slices["v_up"]] = p[layout.slices["v_low"]] = v_ref.ravel()
+        if "drag" in layout.slices:
+            p[layout.slices["drag"]] = 0.0 if drag is None else drag
         return p
 
     def _cold_guess(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """First-solve guess: a model rollout from x0 at INITIAL_GUESS_SPEED_MPS."""
         pr = self.problem
         N = pr.horizon
-        xs = np.empty((N + 1, len(XA)))
+        xs = np.empty((N + 1, pr.nxa))
         us = np.zeros((N, len(UA)))
+        mi = self._model_index
         us[:, UA.V_L] = INITIAL_GUESS_SPEED_MPS
         us[:, UA.V_P] = INITIAL_GUESS_SPEED_MPS
         xs[0] = x0
         for k in range(N):
-            nxt = np.asarray(pr.step(xs[k, : len(S)], us[k, :NU])).reshape(-1)
-            xs[k + 1, : len(S)] = nxt
-            xs[k + 1, len(S) :] = us[k, :NU]
+            xs[k + 1, mi] = np.asarray(pr.step(xs[k, mi], us[k, :NU])).reshape(-1)
+            xs[k + 1, NX : NX + NU] = us[k, :NU]
         return xs, us
 
     def _align(self, w: np.ndarray, x0: np.ndarray) -> np.ndarray:
@@ -564,7 +628,8 @@ class Planner:
             u0 = np.clip(us[0, :NU], self._u_lo, self._u_hi)
             status = FALLBACK
         else:
-            xs = np.tile(x0, (N + 1, 1)) if x0.size == len(XA) else np.zeros((N + 1, len(XA)))
+            nxa = self.problem.nxa
+            xs = np.tile(x0, (N + 1, 1)) if x0.size == nxa else np.zeros((N + 1, nxa))
             us = np.zeros((N, len(UA)))
             u0 = np.array(
                 [

@@ -7,6 +7,11 @@ Layout of the decision vector, stage by stage as fatrop's structure detection ne
 with the augmented OCP state ``xa = [X, Y, phi, s, v_l_prev, delta_prev, v_p_prev]`` (the model
 state plus the previous input, so the delta-u cost is stage-local) and the OCP input
 ``ua = [v_l, delta, v_p, slack]`` (the model input plus the track-limit slack, >= 0).
+With the car's speed loop in the model (``model.SpeedLoop``, ``cimpcc-line``) the augmented
+state gets the car's speed ``v`` last (index ``XA_SPEED``; ``v_l`` is then its command), and
+the velocity pull R3 weighs the speed the stage reaches, ``v_{k+1}``, instead of ``v_l,k``;
+a per-stage parameter ``drag_k`` [m/s^2] (the reference lap's tyre drag at stage k) slows
+it: ``v_{k+1} = F(...)_v - Ts drag_k``.
 
 Constraints, in order: gap 0, the initial-state equality, path constraints of stage 0, then
 gap k and path constraints of stage k for k = 1..N-1. The path constraints keep the NEXT
@@ -36,7 +41,17 @@ import casadi as ca
 import numpy as np
 
 from services.planner.cost import stage_cost, terminal_cost
-from services.planner.model import NU, NX, S, SlipModel, U, discretise, kinematic_bicycle
+from services.planner.model import (
+    NU,
+    NX,
+    SPEED,
+    S,
+    SlipModel,
+    SpeedLoop,
+    U,
+    discretise,
+    kinematic_bicycle,
+)
 from services.planner.reference import (
     R,
     ReferencePath,
@@ -71,6 +86,8 @@ class UA(IntEnum):
 
 NXA = len(XA)
 NUA = len(UA)
+#: Index of the car's speed in the augmented state of a problem with a speed loop (last).
+XA_SPEED = NXA
 #: Elements of the velocity pair ``v = [v_l, v_p]`` (paper eq. 11).
 NV = 2
 
@@ -80,6 +97,7 @@ class ParamLayout:
     """Named slices of the parameter vector ``p``."""
 
     horizon: int
+    nxa: int = NXA  #: size of the augmented state (NXA + 1 with a speed loop)
 
     def __post_init__(self) -> None:
         out, i = {}, 0
@@ -93,7 +111,7 @@ class ParamLayout:
     def sizes(self) -> dict[str, int]:
         """Size of each named parameter block."""
         return {
-            "x0": NXA,
+            "x0": self.nxa,
             "beta": self.horizon,
             "q": 2,  # contour, lag
             "gamma": 1,
@@ -105,6 +123,8 @@ class ParamLayout:
             "v_low": NV * self.horizon,
             "w_du0": 1,  # 1: weigh u_0 against the applied command, 0: paper (inside horizon)
             "slack_w": 2,  # linear, quadratic
+            # speed loop only: the deceleration [m/s^2] beyond it at each stage (tyres' drag)
+            **({"drag": self.horizon} if self.nxa > NXA else {}),
         }
 
     @property
@@ -169,6 +189,8 @@ class OcpProblem:
         errors: ``errors(x[4]) -> [e_con, e_lag]`` against the reference.
         signature: text that identifies the structure (for the compile cache key).
         reference: the path the problem contours (its progress ``s`` is the state's).
+        nxa: size of the augmented state (``NXA``, or ``NXA + 1`` with the car's speed).
+        model_index: where the model's state (4 or 5) sits in the augmented state.
     """
 
     nlp: dict
@@ -185,27 +207,34 @@ class OcpProblem:
     errors: ca.Function
     signature: str
     reference: ReferencePath
+    nxa: int = NXA
+    model_index: tuple[int, ...] = tuple(range(NX))
+
+    @property
+    def has_speed(self) -> bool:
+        """Whether the model holds the car's speed (a speed loop, ``XA_SPEED``)."""
+        return self.nxa > NXA
 
     def state_index(self, k: int) -> slice:
         """Slice of xa_k in w."""
-        i = k * (NXA + NUA)
-        return slice(i, i + NXA)
+        i = k * (self.nxa + NUA)
+        return slice(i, i + self.nxa)
 
     def input_index(self, k: int) -> slice:
         """Slice of ua_k in w."""
-        i = k * (NXA + NUA) + NXA
+        i = k * (self.nxa + NUA) + self.nxa
         return slice(i, i + NUA)
 
     def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(states (N+1, 7), inputs (N, 4)) from a decision vector (copies)."""
+        """(states (N+1, nxa), inputs (N, 4)) from a decision vector (copies)."""
         w = np.asarray(w, dtype=float).reshape(-1)
-        n = self.horizon * (NXA + NUA)
-        stages = w[:n].reshape(self.horizon, NXA + NUA)
-        xs = np.vstack([stages[:, :NXA], w[n:][None, :]])
-        return xs, stages[:, NXA:].copy()
+        n = self.horizon * (self.nxa + NUA)
+        stages = w[:n].reshape(self.horizon, self.nxa + NUA)
+        xs = np.vstack([stages[:, : self.nxa], w[n:][None, :]])
+        return xs, stages[:, self.nxa :].copy()
 
     def pack(self, xs: np.ndarray, us: np.ndarray) -> np.ndarray:
-        """Decision vector from (states (N+1, 7), inputs (N, 4))."""
+        """Decision vector from (states (N+1, nxa), inputs (N, 4))."""
         stages = np.hstack([xs[: self.horizon], us])
         return np.concatenate([stages.ravel(), xs[self.horizon]])
 
@@ -214,6 +243,8 @@ def build_problem(
     reference: Track | ReferencePath,
     settings: PlannerSettings,
     slip: SlipModel | None = None,
+    speed_loop: SpeedLoop | None = None,
+    speed_cap_mps: float | None = None,
 ) -> OcpProblem:
     """Build the CiMPCC/MPCC NLP on a reference path with the structure fixed by `settings`.
 
@@ -223,36 +254,47 @@ def build_problem(
         settings: planner settings (N, Ts, integrator, L, margin, bounds).
         slip: the model's steady-state tyre slip (``model.SlipModel``, with its own L);
             None: the paper's kinematic bicycle with ``settings.wheelbase_m``.
+        speed_loop: the car's speed loop (``model.SpeedLoop``): the car's speed becomes a
+            state (``XA_SPEED``) and ``v_l`` its command; None: ``v_l`` is the speed (paper).
+        speed_cap_mps: with `speed_loop`, the car's planned speed at stages 1..N is at most
+            this [m/s] (a bound; stage 0 is the measured state); None: no cap.
     """
     path = reference if isinstance(reference, ReferencePath) else centreline_path(reference)
     N = settings.horizon_steps
-    f = kinematic_bicycle(settings.wheelbase_m, slip)
+    f = kinematic_bicycle(settings.wheelbase_m, slip, speed_loop)
     F = discretise(f, settings.dt_s, settings.integrator)
     ref = reference_lookup(path.path)
-    layout = ParamLayout(N)
+    speed = speed_loop is not None
+    nxa = NXA + speed
+    layout = ParamLayout(N, nxa)
     p = ca.SX.sym("p", layout.size)
     par = layout.split(p)
     margin = settings.track_margin_m
 
-    xs = [ca.SX.sym(f"x{k}", NXA) for k in range(N + 1)]
+    xs = [ca.SX.sym(f"x{k}", nxa) for k in range(N + 1)]
     us = [ca.SX.sym(f"u{k}", NUA) for k in range(N)]
     w_parts, g, lbg, ubg, equality = [], [], [], [], []
     cost = 0
     for k in range(N):
         xk, uk = xs[k], us[k]
         w_parts += [xk, uk]
-        zeta, u_model = xk[:NX], uk[:NU]
+        zeta = ca.vertcat(xk[:NX], xk[XA_SPEED]) if speed else xk[:NX]
+        u_model = uk[:NU]
         zeta_next = F(zeta, u_model)
-        gap = xs[k + 1] - ca.vertcat(zeta_next, u_model)
+        if speed:  # the known drag of stage k slows the car over the step
+            zeta_next[SPEED] -= settings.dt_s * par["drag"][k]
+            gap = xs[k + 1] - ca.vertcat(zeta_next[:NX], u_model, zeta_next[SPEED])
+        else:
+            gap = xs[k + 1] - ca.vertcat(zeta_next, u_model)
         g.append(gap)
-        lbg += [0.0] * NXA
-        ubg += [0.0] * NXA
-        equality += [True] * NXA
+        lbg += [0.0] * nxa
+        ubg += [0.0] * nxa
+        equality += [True] * nxa
         if k == 0:
             g.append(xk - par["x0"])
-            lbg += [0.0] * NXA
-            ubg += [0.0] * NXA
-            equality += [True] * NXA
+            lbg += [0.0] * nxa
+            ubg += [0.0] * nxa
+            equality += [True] * nxa
         # path constraint: the next position inside the (pulled-in) boundaries, soft
         ref_next = ref(zeta_next[S.PROGRESS])
         e_con_next, _ = track_errors(ref_next, zeta_next[S.X], zeta_next[S.Y])
@@ -279,20 +321,24 @@ def build_problem(
             par=par,
             dt_s=settings.dt_s,
             first_stage=(k == 0),
+            v_l=zeta_next[SPEED] if speed else None,
         )
     w_parts.append(xs[N])
     e_con_n, e_lag_n = track_errors(ref(xs[N][XA.PROGRESS]), xs[N][XA.X], xs[N][XA.Y])
     cost += terminal_cost(e_con_n, e_lag_n, par)
 
-    lbw = np.full(N * (NXA + NUA) + NXA, -np.inf)
+    lbw = np.full(N * (nxa + NUA) + nxa, -np.inf)
     ubw = np.full_like(lbw, np.inf)
     b = settings.bounds
     for k in range(N):
-        i = k * (NXA + NUA) + NXA
+        i = k * (nxa + NUA) + nxa
         lbw[i + UA.V_L], ubw[i + UA.V_L] = b.v_l_mps
         lbw[i + UA.DELTA], ubw[i + UA.DELTA] = b.delta_rad
         lbw[i + UA.V_P], ubw[i + UA.V_P] = b.v_p_mps
         lbw[i + UA.SLACK] = 0.0
+    if speed and speed_cap_mps is not None:
+        for k in range(1, N + 1):
+            ubw[k * (nxa + NUA) + XA_SPEED] = speed_cap_mps
 
     zeta = ca.SX.sym("zeta", NX)
     e_c, e_l = track_errors(ref(zeta[S.PROGRESS]), zeta[S.X], zeta[S.Y])
@@ -309,6 +355,7 @@ def build_problem(
             f"bounds={b.model_dump_json()}",
             f"track={track_fingerprint(path.path)}",
         ]
+        + ([f"speed_loop={speed_loop!r},drag-param,cap={speed_cap_mps!r}"] if speed else [])
     )
     return OcpProblem(
         nlp={"x": ca.vertcat(*w_parts), "p": p, "f": cost, "g": ca.vertcat(*g)},
@@ -325,6 +372,8 @@ def build_problem(
         errors=errors,
         signature=signature,
         reference=path,
+        nxa=nxa,
+        model_index=tuple(range(NX)) + ((XA_SPEED,) if speed else ()),
     )
 
 

@@ -59,6 +59,9 @@ class SpeedProfile:
             loop's lead over the lap's acceleration input (``min_time_path``).
         length_m: period (the path's length) [m].
         lap_time_s: the lap time of the lap the profile comes from [s].
+        drag_mps2: (m,) the deceleration [m/s^2] the lap's drive fights there besides
+            ``dv/dt`` (the tyres' drag in a bend: its acceleration input minus ``dv/dt``,
+            >= 0), or None.
     """
 
     s_m: np.ndarray
@@ -66,12 +69,21 @@ class SpeedProfile:
     command_mps: np.ndarray
     length_m: float
     lap_time_s: float
+    drag_mps2: np.ndarray | None = None
 
     def command_at(self, s: np.ndarray | float) -> np.ndarray:
         """The speed command [m/s] at arc length(s) `s` [m] (wrapped, linear in s)."""
         s_cl = np.append(self.s_m, self.length_m)
         v_cl = np.append(self.command_mps, self.command_mps[0])
         return np.interp(np.mod(s, self.length_m), s_cl, v_cl)
+
+    def drag_at(self, s: np.ndarray | float) -> np.ndarray:
+        """The drag [m/s^2] at arc length(s) `s` [m] (wrapped, linear in s; 0 without)."""
+        if self.drag_mps2 is None:
+            return np.zeros(np.shape(s))
+        s_cl = np.append(self.s_m, self.length_m)
+        d_cl = np.append(self.drag_mps2, self.drag_mps2[0])
+        return np.interp(np.mod(s, self.length_m), s_cl, d_cl)
 
     def speed_at(self, s: np.ndarray | float) -> np.ndarray:
         """The profile's speed [m/s] at arc length(s) `s` [m] (wrapped, linear in s)."""
@@ -141,7 +153,8 @@ def min_time_path(
     plus what the tyres' drag in a bend takes). A proportional speed loop ``a = k (v_cmd -
     v)`` (the simulator's, like the gym's) gives that acceleration for ``T = 1 / k``; the
     planner's kinematic model knows no such lag, and without the lead the car would run
-    about 0.3 m/s below the profile through a 1 m bend.
+    about 0.3 m/s below the profile through a 1 m bend. The profile's drag is that input
+    minus the lap's ``dv/dt`` (for a model that holds the car's speed).
 
     Args:
         track: the real track (its centreline and widths).
@@ -167,8 +180,11 @@ def min_time_path(
     a = lap.inputs[:, INPUT_NAMES.index(ACCEL_INPUT)]
     v = lap.v_mps
     command = v + accel_lead_s * np.maximum(a, 0.0) + brake_lead_s * np.minimum(a, 0.0)
-    speed = SpeedProfile(s_nodes, v, command, path.length_m, lap.lap_time_s)
-    for arr in (track_s, s_nodes, command, speed.v_mps):
+    # dv/dt from node k to k+1 (the input acts from node k on), the lap closed
+    t_next = np.append(lap.t_s[1:], lap.lap_time_s)
+    drag = np.maximum(a - (np.roll(v, -1) - v) / (t_next - lap.t_s), 0.0)
+    speed = SpeedProfile(s_nodes, v, command, path.length_m, lap.lap_time_s, drag)
+    for arr in (track_s, s_nodes, command, speed.v_mps, drag):
         arr.setflags(write=False)
     return ReferencePath(path, MIN_TIME_LINE, track_s, speed)
 

@@ -33,6 +33,21 @@ class MethodWeights(Section):
     The cost (paper eq. 3 and 11), summed over the horizon:
     ``||xi_k||_Q - gamma v_p,k Ts + ||du_k||_R1 + ||u_k - u_ref||_R2
     + (1 - beta) ||v_k - v_low||_R3 + beta ||v_k - v_up||_R3``.
+
+    Attributes:
+        q_contour: Q's weight on the contour error e_c (lateral distance to the line)
+            [1/m^2].
+        q_lag: Q's weight on the lag error e_l (along the line) [1/m^2].
+        gamma: progress reward per m/s of v_p per second.
+        r1_delta_u: R1 = diag of the weights on the input changes du = (dv_l, d delta,
+            dv_p) from one stage to the next.
+        r2_input: R2 = diag of the weights on u - u_ref (v_l, delta, v_p).
+        u_ref: the input reference (v_l [m/s], delta [rad], v_p [m/s]) R2 pulls towards.
+        r3_velocity: R3 = diag of the weights pulling v = (v_l, v_p) to v_low / v_up.
+        v_up_mps: upper velocity reference (v_l, v_p), taken where the track is straight
+            (beta = 1) [m/s].
+        v_low_mps: lower velocity reference (v_l, v_p), taken in tight bends (beta = 0)
+            [m/s].
     """
 
     q_contour: NonNeg = 800.0
@@ -55,10 +70,22 @@ MPCC_WEIGHTS = MethodWeights(
 #: cimpcc-line: CiMPCC's weights with a 7x lighter steering-rate weight (R1 delta 3500 ->
 #: 500): holding a line within centimetres needs the steering the centreline never asked for.
 CIMPCC_LINE_WEIGHTS = CIMPCC_WEIGHTS.model_copy(update={"r1_delta_u": (10.0, 500.0, 0.0)})
+#: ... with ``model = "kinematic_slip_speed"``: also 15x the progress reward (gamma 40 ->
+#: 600): against R3 = 40 it asks up to ``gamma Ts / (2 R3)`` = 0.37 m/s more than the
+#: 95 %-grip profile's speed (that model's planned speeds are the car's; the speed cap bounds
+#: them), i.e. it races nearer the full grip than its line. (Its overlay: README, "Laps at
+#: the limit".)
+CIMPCC_LINE_SPEED_WEIGHTS = CIMPCC_LINE_WEIGHTS.model_copy(update={"gamma": 600.0})
 
 
 class InputBounds(Section):
-    """Box bounds of the inputs (paper Table II)."""
+    """Box bounds of the inputs (paper Table II).
+
+    Attributes:
+        v_l_mps: (min, max) of the speed command v_l [m/s].
+        delta_rad: (min, max) of the steering angle delta, within [-1.2, 1.2] [rad].
+        v_p_mps: (min, max) of the progress speed v_p [m/s].
+    """
 
     v_l_mps: tuple[Speed, Speed] = (-10.0, 10.0)
     delta_rad: tuple[float, float] = Field((-0.35, 0.35))
@@ -76,7 +103,14 @@ class InputBounds(Section):
 
 
 class SolverSettings(Section):
-    """The NLP solver back-end."""
+    """The NLP solver back-end.
+
+    Attributes:
+        backend: the CasADi NLP solver: "fatrop" (structure-exploiting, fast) or "ipopt".
+        max_iter: most solver iterations per solve.
+        tol: the solver's convergence tolerance.
+        mu_init: the solver's initial barrier parameter (interior point).
+    """
 
     backend: Literal["fatrop", "ipopt"] = "fatrop"
     compile: bool = Field(True, description="compile problem functions with a C compiler")
@@ -156,22 +190,29 @@ class CimpccLineSettings(Section):
 
     weights: MethodWeights = Field(
         CIMPCC_LINE_WEIGHTS,
-        description="the paper's CiMPCC weights but R1 = diag(10, 500, 0); v_up/v_low "
-        "are unused (the speed profile sets them per stage)",
+        description="the paper's CiMPCC weights but R1 = diag(10, 500, 0) (with model "
+        "'kinematic_slip_speed' use gamma 600); v_up/v_low are unused (the speed profile "
+        "sets them per stage)",
     )
     horizon_steps: int = Field(10, ge=2, le=60, description="N of this method's problem")
-    model: Literal["kinematic", "kinematic_slip"] = Field(
+    model: Literal["kinematic", "kinematic_slip", "kinematic_slip_speed"] = Field(
         "kinematic_slip",
         description="'kinematic': the paper's bicycle (wheelbase_m); 'kinematic_slip': with "
-        "the car's steady-state tyre slip and wheelbase (services/planner/model.py)",
+        "the car's steady-state tyre slip and wheelbase; 'kinematic_slip_speed': the slip "
+        "fitted up to the limit, and the car's speed a state behind its speed loop (v_l its "
+        "command; the line's tyre drag per stage) (services/planner/model.py): 0.4 % faster "
+        "on paperlike but solve p99 over 2 ms, so not the default",
     )
     lead_pose_s: float = Field(
         0.04, ge=0.0, le=0.5,
-        description="plan from the pose predicted this far ahead with the acting command "
-        "(compute 2 + actuation 10 + steering 20 + servo ~10 ms) [s]; 0: the measured pose",
+        description="plan from the pose (and speed) predicted this far ahead with the acting "
+        "command (compute 2 + actuation 10 + steering 20 + servo ~10 ms; 0.045 found best "
+        "with model 'kinematic_slip_speed') [s]; 0: the measured pose",
     )
     v_max_mps: float = Field(
-        4.18, gt=1.0, le=100.0, description="top speed of the minimum-time lap [m/s]"
+        4.18, gt=1.0, le=100.0,
+        description="top speed of the minimum-time lap [m/s]; model 'kinematic_slip_speed': "
+        "also a bound on the planned speed (the cap every method races at)",
     )
     line_margin_m: float = Field(
         0.06, ge=0.0, le=1.0,
@@ -218,7 +259,12 @@ class RecoverySettings(Section):
 
 
 class PlannerSettings(Section):
-    """The CiMPCC / MPCC planner: one problem, two weight sets."""
+    """The CiMPCC / MPCC planner: one problem, two weight sets.
+
+    Attributes:
+        integrator: discretisation of the model over dt_s: "rk4" (4th-order Runge-Kutta)
+            or "euler".
+    """
 
     method: Literal["cimpcc", "mpcc", "raceline", "cimpcc-line"] = Field(
         "cimpcc", description="the planner the service runs ('raceline': the baseline)"

@@ -44,3 +44,12 @@ def test_the_commented_alternatives_are_valid_too() -> None:
         config_from_dict(data, f"{CAR_TOML} with {line.strip()}")
         tried += 1
     assert tried >= 2 and base  # the Ethernet lidar port and the laptop listen endpoint
+
+
+def test_the_cimpcc_line_speed_overlay_is_the_speed_model_with_cimpcc_lines_weights() -> None:
+    """config/cimpcc-line-speed.toml: the model README's "Laps at the limit" measures."""
+    from shared.config.planner import CIMPCC_LINE_SPEED_WEIGHTS
+
+    line = load_config(CAR_TOML.parent / "cimpcc-line-speed.toml").planner.cimpcc_line
+    assert line.model == "kinematic_slip_speed" and line.lead_pose_s == 0.045
+    assert line.weights == CIMPCC_LINE_SPEED_WEIGHTS
