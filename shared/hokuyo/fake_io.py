@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import queue
 import select
 import shutil
 import socket
@@ -33,23 +32,14 @@ from typing import Any, Literal
 
 import numpy as np
 
+from shared.fake_thread import RequestPipe, pty_available  # noqa: F401 (re-exported)
 from shared.hokuyo.fake import FakeHokuyoModel
 
-_REQUEST_TIMEOUT_S = 2.0
 _IDLE_POLL_S = 0.05
 #: Longest a write may wait for a slow reader before the rest is dropped [s].
 _WRITE_WAIT_S = 0.2
 
 
-def pty_available() -> bool:
-    """Whether pseudo-terminals can be opened here."""
-    try:
-        m, s = os.openpty()
-    except OSError:
-        return False
-    os.close(m)
-    os.close(s)
-    return True
 
 
 class FakeHokuyo:
@@ -84,11 +74,7 @@ class FakeHokuyo:
         self.transport = transport
         self._t0 = time.monotonic()
         self._lock = threading.RLock()
-        self._requests: queue.SimpleQueue[tuple[Callable[[], object], threading.Event]] = (
-            queue.SimpleQueue()
-        )
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
+        self._requests = RequestPipe("the fake Hokuyo")
         self._stop = threading.Event()
         self.sent: list[tuple[int, float]] = []
         self.bytes_dropped = 0
@@ -159,9 +145,7 @@ class FakeHokuyo:
         self._wake()
         self._thread.join(timeout_s)
         self._unplug()
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        self._requests.close()
         if self._own_dir:
             shutil.rmtree(self._dir, ignore_errors=True)
 
@@ -173,28 +157,10 @@ class FakeHokuyo:
 
     # -- the thread's side ----------------------------------------------------------------------
     def _wake(self) -> None:
-        with contextlib.suppress(OSError):
-            os.write(self._wake_w, b"\x00")
+        self._requests.wake()
 
     def _request(self, action: Callable[[], object]) -> None:
-        if self._stop.is_set() or not self._thread.is_alive():
-            raise RuntimeError("the fake Hokuyo is closed")
-        done = threading.Event()
-        self._requests.put((action, done))
-        self._wake()
-        if not done.wait(_REQUEST_TIMEOUT_S):
-            raise TimeoutError("the fake Hokuyo thread did not answer")
-
-    def _serve_requests(self) -> None:
-        while True:
-            try:
-                action, done = self._requests.get_nowait()
-            except queue.Empty:
-                return
-            try:
-                action()
-            finally:
-                done.set()
+        self._requests.request(action, not self._stop.is_set() and self._thread.is_alive())
 
     def _plug(self) -> None:
         if self.transport == "pty":
@@ -280,13 +246,13 @@ class FakeHokuyo:
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
-                self._serve_requests()
+                self._requests.serve()
                 self._step()
         except BaseException as exc:  # kept for the tests to see
             self.thread_error = exc
 
     def _step(self) -> None:
-        fds = [self._wake_r]
+        fds = [self._requests.wake_fd]
         if self.transport == "pty" and self._master is not None:
             fds.append(self._master)
         if self.transport == "tcp":
@@ -298,9 +264,8 @@ class FakeHokuyo:
             due = self.model.next_due_s()
         wait = _IDLE_POLL_S if due is None else max(0.0, min(_IDLE_POLL_S, due - self.now_s()))
         ready, _, _ = select.select(fds, [], [], wait)
-        if self._wake_r in ready:
-            with contextlib.suppress(BlockingIOError):
-                os.read(self._wake_r, 4096)
+        if self._requests.wake_fd in ready:
+            self._requests.drain()
         if self._listen is not None and self._listen.fileno() in ready:
             with contextlib.suppress(BlockingIOError):
                 conn, _ = self._listen.accept()

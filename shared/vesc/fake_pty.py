@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import queue
 import select
 import shutil
 import tempfile
@@ -30,6 +29,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from shared.fake_thread import RequestPipe, pty_available  # noqa: F401 (re-exported)
 from shared.vesc.fake import (
     DEFAULT_FIRMWARE_TIMEOUT_S,
     DEFAULT_VALUES,
@@ -43,21 +43,10 @@ from shared.vesc.fake import (
 )
 from shared.vesc.values import VescValues
 
-#: Longest a request to the fake's thread may take before it is reported as failed [s].
-_REQUEST_TIMEOUT_S = 2.0
 #: Poll period of the fake's loop when idle [s] (also the firmware timeout resolution).
 _IDLE_POLL_S = 0.005
 
 
-def pty_available() -> bool:
-    """Whether this machine can open pseudo-terminals (what ``FakeVesc`` needs)."""
-    try:
-        m, s = os.openpty()
-    except OSError:
-        return False
-    os.close(m)
-    os.close(s)
-    return True
 
 
 def _state_field(name: str, doc: str) -> Any:
@@ -156,9 +145,7 @@ class FakeVesc:
         self._dir = Path(link_dir) if link_dir is not None else Path(tempfile.mkdtemp("fake-vesc"))
         self.path = str(self._dir / "vesc")
         self._cond = threading.Condition(threading.RLock())
-        self._requests: queue.SimpleQueue[tuple[Callable[[], object], _Reply]] = queue.SimpleQueue()
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
+        self._requests = RequestPipe("the fake VESC")
         self._stop = threading.Event()
         self._master: int | None = None
         self._slave: int | None = None
@@ -250,9 +237,7 @@ class FakeVesc:
         self._wake()
         self._thread.join(timeout_s)
         self._unplug()
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        self._requests.close()
         if self._own_dir:
             shutil.rmtree(self._dir, ignore_errors=True)
 
@@ -264,19 +249,10 @@ class FakeVesc:
 
     # -- requests to the fake's thread -------------------------------------------------------
     def _wake(self) -> None:
-        with contextlib.suppress(OSError):
-            os.write(self._wake_w, b"\x00")
+        self._requests.wake()
 
     def _request(self, action: Callable[[], object]) -> None:
-        if self._stop.is_set() or not self._thread.is_alive():
-            raise RuntimeError("the fake VESC is closed")
-        reply = _Reply()
-        self._requests.put((action, reply))
-        self._wake()
-        if not reply.done.wait(_REQUEST_TIMEOUT_S):
-            raise TimeoutError("the fake VESC thread did not answer")
-        if reply.error is not None:
-            raise reply.error
+        self._requests.request(action, not self._stop.is_set() and self._thread.is_alive())
 
     # -- pty (only on the fake's thread after start) -----------------------------------------
     def _plug(self) -> None:
@@ -320,13 +296,13 @@ class FakeVesc:
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
-                self._serve_requests()
-                fds = [self._wake_r] if self._master is None else [self._wake_r, self._master]
+                self._requests.serve()
+                wake = self._requests.wake_fd
+                fds = [wake] if self._master is None else [wake, self._master]
                 ready, _, _ = select.select(fds, [], [], _IDLE_POLL_S)
-                if self._wake_r in ready:
-                    with contextlib.suppress(BlockingIOError):
-                        os.read(self._wake_r, 4096)
-                    self._serve_requests()
+                if wake in ready:
+                    self._requests.drain()
+                    self._requests.serve()
                 if self._master is not None and self._master in ready:
                     try:
                         data = os.read(self._master, 4096)
@@ -342,19 +318,7 @@ class FakeVesc:
         except BaseException as exc:  # report instead of dying silently
             self.thread_error = exc
         finally:
-            self._serve_requests()
-
-    def _serve_requests(self) -> None:
-        while True:
-            try:
-                action, reply = self._requests.get_nowait()
-            except queue.Empty:
-                return
-            try:
-                action()
-            except BaseException as exc:
-                reply.error = exc
-            reply.done.set()
+            self._requests.serve()
 
     def _on_bytes(self, data: bytes) -> None:
         now = self._clock()
@@ -363,13 +327,3 @@ class FakeVesc:
             self._cond.notify_all()
         if replies:
             self._write(replies)
-
-
-class _Reply:
-    """Completion of a request handed to the fake's thread."""
-
-    __slots__ = ("done", "error")
-
-    def __init__(self) -> None:
-        self.done = threading.Event()
-        self.error: BaseException | None = None
