@@ -42,12 +42,16 @@ def stage_cost(
     dt_s: float,
     first_stage: bool,
     v_l: ca.SX | None = None,
+    v_pull_refs: tuple[ca.SX, ca.SX, ca.SX] | bool | None = None,
 ) -> ca.SX:
     """Cost of one stage (see the module docstring).
 
     `beta`, `v_low`, `v_up` ([v_l, v_p] [m/s]) are the stage's; `par` holds the named
     parameter blocks of the weights. `v_l`: the speed the velocity pulls weigh in place of
     the input's ``v_l`` (a model with the car's speed loop: the speed the stage reaches).
+    `v_pull_refs`: (beta, v_low, v_up) of the pull on `v_l` when they are another stage's
+    (the lifted problem pulls stage k's own speed with stage k-1's references); False: no
+    pull on `v_l` (a fixed speed: stage 0's); None: this stage's.
     """
     q = par["q"]
     cost = q[0] * e_con**2 + q[1] * e_lag**2
@@ -55,11 +59,25 @@ def stage_cost(
     du = _quad(u - u_prev, par["r1"])
     cost += par["w_du0"] * du if first_stage else du
     cost += _quad(u - par["u_ref"], par["r2"])
-    v = ca.vertcat(u[U.V_L] if v_l is None else v_l, u[U.V_P])
-    cost += (1 - beta) * _quad(v - v_low, par["r3"])
-    cost += beta * _quad(v - v_up, par["r3"])
+    if v_pull_refs is None:
+        v = ca.vertcat(u[U.V_L] if v_l is None else v_l, u[U.V_P])
+        cost += (1 - beta) * _quad(v - v_low, par["r3"])
+        cost += beta * _quad(v - v_up, par["r3"])
+    else:  # the pulls on v_l and on v_p, each with its own stage's references
+        r3 = par["r3"]
+        cost += r3[1] * ((1 - beta) * (u[U.V_P] - v_low[1]) ** 2 + beta * (u[U.V_P] - v_up[1]) ** 2)
+        if v_pull_refs is not False:
+            assert v_l is not None and not isinstance(v_pull_refs, bool)
+            cost += speed_pull(v_l, *v_pull_refs, par)
     cost += par["slack_w"][0] * slack + par["slack_w"][1] * slack**2
     return cost
+
+
+def speed_pull(v: ca.SX, beta: ca.SX, v_low: ca.SX, v_up: ca.SX, par: dict[str, ca.SX]) -> ca.SX:
+    """CiMPCC's velocity pull on the speed element alone: ``R3[0] ((1 - beta) (v -
+    v_low[0])^2 + beta (v - v_up[0])^2)`` (`v_low`, `v_up`: the stage's [v_l, v_p] pair)."""
+    r3 = par["r3"]
+    return r3[0] * ((1 - beta) * (v - v_low[0]) ** 2 + beta * (v - v_up[0]) ** 2)
 
 
 def terminal_cost(e_con: ca.SX, e_lag: ca.SX, par: dict[str, ca.SX]) -> ca.SX:

@@ -265,6 +265,8 @@ def discretise(f: ca.Function, dt_s: float, integrator: str = "rk4") -> ca.Funct
     u = ca.SX.sym("u", f.size1_in(1))
     if integrator == "euler":
         x_next = x + dt_s * f(x, u)
+    elif integrator == "rk2":  # the midpoint rule
+        x_next = x + dt_s * f(x + dt_s / 2 * f(x, u), u)
     elif integrator == "rk4":
         k1 = f(x, u)
         k2 = f(x + dt_s / 2 * k1, u)

@@ -39,7 +39,12 @@ from services.planner.problem import UA, XA, XA_SPEED, OcpProblem, build_problem
 from services.planner.recovery import Recovery, RecoveryCommand
 from services.planner.reference import ReferencePath, centreline_path, min_time_path
 from services.planner.solver import SolverHandle, make_solver
-from shared.config.planner import CurvatureSettings, MethodWeights, PlannerSettings
+from shared.config.planner import (
+    CurvatureSettings,
+    MethodWeights,
+    PlannerSettings,
+    SolverSettings,
+)
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
 from shared.curvature import CurvatureProfile, track_profile
 from shared.messages.vocab import PlanStatusName
@@ -72,7 +77,19 @@ def problem_settings(settings: PlannerSettings, method: str) -> PlannerSettings:
     own N (``[planner.cimpcc_line] horizon_steps``); the others use `settings`."""
     if method != CIMPCC_LINE:
         return settings
-    return settings.model_copy(update={"horizon_steps": settings.cimpcc_line.horizon_steps})
+    own = settings.cimpcc_line
+    update: dict = {"horizon_steps": own.horizon_steps}
+    if own.integrator is not None:
+        update["integrator"] = own.integrator
+    return settings.model_copy(update=update)
+
+
+def solver_settings(settings: PlannerSettings, method: str) -> SolverSettings:
+    """The solver settings of `method`: ``cimpcc-line`` has its own tolerances
+    (``[planner.cimpcc_line.solver]``); the others use ``[planner.solver]``."""
+    if method != CIMPCC_LINE:
+        return settings.solver
+    return settings.solver.model_copy(update=settings.cimpcc_line.solver.model_dump())
 
 
 def min_time_reference(
@@ -246,6 +263,7 @@ class Planner:
                 slip,
                 speed_loop,
                 settings.cimpcc_line.v_max_mps if with_speed else None,
+                lifted=self.method == CIMPCC_LINE and settings.cimpcc_line.lifted,
             )
         self.problem = problem
         #: the car's speed loop of a model that holds the car's speed (None: no speed state)
@@ -258,7 +276,7 @@ class Planner:
         self.path: Track = self.reference.path
         if self.method == CIMPCC_LINE and self.reference.speed is None:
             raise ValueError("cimpcc-line needs a reference path with a speed profile")
-        self.solver = solver or make_solver(self.problem, settings.solver)
+        self.solver = solver or make_solver(self.problem, solver_settings(settings, self.method))
         lead = settings.cimpcc_line.lead_pose_s if self.method == CIMPCC_LINE else 0.0
         #: ``cimpcc-line``: the model over the lead time, ``F(x, u)`` (None: no lead)
         self._lead = discretise(problem.dynamics, lead, "rk4") if lead > 0 else None

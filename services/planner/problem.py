@@ -40,7 +40,7 @@ from enum import IntEnum
 import casadi as ca
 import numpy as np
 
-from services.planner.cost import stage_cost, terminal_cost
+from services.planner.cost import speed_pull, stage_cost, terminal_cost
 from services.planner.model import (
     NU,
     NX,
@@ -245,6 +245,7 @@ def build_problem(
     slip: SlipModel | None = None,
     speed_loop: SpeedLoop | None = None,
     speed_cap_mps: float | None = None,
+    lifted: bool = False,
 ) -> OcpProblem:
     """Build the CiMPCC/MPCC NLP on a reference path with the structure fixed by `settings`.
 
@@ -258,6 +259,14 @@ def build_problem(
             state (``XA_SPEED``) and ``v_l`` its command; None: ``v_l`` is the speed (paper).
         speed_cap_mps: with `speed_loop`, the car's planned speed at stages 1..N is at most
             this [m/s] (a bound; stage 0 is the measured state); None: no cap.
+        lifted: keep stage k's track limits (and, with `speed_loop`, the velocity pull on
+            the speed it reaches) on the state variable ``xa_k`` itself (k = 1..N-1; stage
+            N-1 keeps ``F(xa_{N-1}, ua_{N-1})``'s, the speed of xa_N is pulled in the
+            terminal cost) instead of on the prediction ``F(xa_{k-1}, ua_{k-1})``: the same
+            problem once the gaps are closed, but the model's second derivatives enter each
+            stage once instead of three times (the solver's Hessian is half the size). The
+            track-limit slack of stage 0 is then unused (bounded to 0). False: the paper's
+            layout (the module docstring).
     """
     path = reference if isinstance(reference, ReferencePath) else centreline_path(reference)
     N = settings.horizon_steps
@@ -295,20 +304,33 @@ def build_problem(
             lbg += [0.0] * nxa
             ubg += [0.0] * nxa
             equality += [True] * nxa
-        # path constraint: the next position inside the (pulled-in) boundaries, soft
-        ref_next = ref(zeta_next[S.PROGRESS])
-        e_con_next, _ = track_errors(ref_next, zeta_next[S.X], zeta_next[S.Y])
+        # path constraint: the next position inside the (pulled-in) boundaries, soft;
+        # lifted: this stage's own position (k >= 1), and the next one's at the last stage
         slack = uk[UA.SLACK]
-        g.append(
-            ca.vertcat(
-                e_con_next + (ref_next[R.W_LEFT] - margin) + slack,
-                (ref_next[R.W_RIGHT] - margin) - e_con_next + slack,
-            )
+        positions = (
+            [zeta_next]
+            if not lifted
+            else ([xk] if k > 0 else []) + ([zeta_next] if k == N - 1 else [])
         )
-        lbg += [0.0, 0.0]
-        ubg += [np.inf, np.inf]
-        equality += [False, False]
+        for zeta_c in positions:
+            ref_c = ref(zeta_c[S.PROGRESS])
+            e_con_c, _ = track_errors(ref_c, zeta_c[S.X], zeta_c[S.Y])
+            g.append(
+                ca.vertcat(
+                    e_con_c + (ref_c[R.W_LEFT] - margin) + slack,
+                    (ref_c[R.W_RIGHT] - margin) - e_con_c + slack,
+                )
+            )
+            lbg += [0.0, 0.0]
+            ubg += [np.inf, np.inf]
+            equality += [False, False]
         e_con, e_lag = track_errors(ref(xk[XA.PROGRESS]), xk[XA.X], xk[XA.Y])
+        # the speed the velocity pull weighs: the one this stage reaches (lifted: the
+        # previous stage's pull on this stage's speed; the last one's in the terminal cost)
+        v_pull = None
+        if speed:
+            v_pull = zeta_next[SPEED] if not lifted else xk[XA_SPEED]
+        stage_refs = k if not lifted or not speed else k - 1
         cost += stage_cost(
             e_con=e_con,
             e_lag=e_lag,
@@ -321,11 +343,21 @@ def build_problem(
             par=par,
             dt_s=settings.dt_s,
             first_stage=(k == 0),
-            v_l=zeta_next[SPEED] if speed else None,
+            v_l=v_pull,
+            v_pull_refs=(
+                None
+                if stage_refs == k
+                else False
+                if stage_refs < 0
+                else _pull_refs(par, layout, stage_refs)
+            ),
         )
     w_parts.append(xs[N])
     e_con_n, e_lag_n = track_errors(ref(xs[N][XA.PROGRESS]), xs[N][XA.X], xs[N][XA.Y])
     cost += terminal_cost(e_con_n, e_lag_n, par)
+    if lifted and speed:  # the last stage's pull on the speed it reaches
+        beta_l, v_low_l, v_up_l = _pull_refs(par, layout, N - 1)
+        cost += speed_pull(xs[N][XA_SPEED], beta_l, v_low_l, v_up_l, par)
 
     lbw = np.full(N * (nxa + NUA) + nxa, -np.inf)
     ubw = np.full_like(lbw, np.inf)
@@ -336,6 +368,8 @@ def build_problem(
         lbw[i + UA.DELTA], ubw[i + UA.DELTA] = b.delta_rad
         lbw[i + UA.V_P], ubw[i + UA.V_P] = b.v_p_mps
         lbw[i + UA.SLACK] = 0.0
+    if lifted:  # stage 0 constrains no position: its slack is unused
+        ubw[nxa + UA.SLACK] = 0.0
     if speed and speed_cap_mps is not None:
         for k in range(1, N + 1):
             ubw[k * (nxa + NUA) + XA_SPEED] = speed_cap_mps
@@ -356,6 +390,7 @@ def build_problem(
             f"track={track_fingerprint(path.path)}",
         ]
         + ([f"speed_loop={speed_loop!r},drag-param,cap={speed_cap_mps!r}"] if speed else [])
+        + (["lifted"] if lifted else [])
     )
     return OcpProblem(
         nlp={"x": ca.vertcat(*w_parts), "p": p, "f": cost, "g": ca.vertcat(*g)},
@@ -374,6 +409,15 @@ def build_problem(
         reference=path,
         nxa=nxa,
         model_index=tuple(range(NX)) + ((XA_SPEED,) if speed else ()),
+    )
+
+
+def _pull_refs(par: dict, layout: ParamLayout, k: int) -> tuple[ca.SX, ca.SX, ca.SX]:
+    """(beta_k, v_low,k, v_up,k) of stage k's velocity pull."""
+    return (
+        par["beta"][k],
+        layout.stage_pair(par["v_low"], k),
+        layout.stage_pair(par["v_up"], k),
     )
 
 

@@ -57,6 +57,10 @@ def default_cache_dir() -> Path:
 def solver_options(problem: OcpProblem, settings: SolverSettings) -> dict:
     """nlpsol options of the chosen back-end (quiet, warm-start friendly)."""
     common = {"print_time": False, "error_on_fail": False}
+    push = (
+        {} if settings.bound_push is None
+        else {"bound_push": settings.bound_push, "bound_frac": settings.bound_push}
+    )
     if settings.backend == "fatrop":
         return {
             **common,
@@ -67,6 +71,7 @@ def solver_options(problem: OcpProblem, settings: SolverSettings) -> dict:
                 "max_iter": settings.max_iter,
                 "tol": settings.tol,
                 "mu_init": settings.mu_init,
+                **push,
             },
         }
     return {
@@ -79,6 +84,7 @@ def solver_options(problem: OcpProblem, settings: SolverSettings) -> dict:
             "mu_init": settings.mu_init,
             "warm_start_init_point": "yes",
             "linear_solver": "mumps",
+            **push,
         },
     }
 

@@ -246,7 +246,7 @@ def cimpcc_line_space(v_max_mps: float) -> SearchSpace:
         ParamSpec("q_lag", 100.0, 5000.0, True, "Q lag weight"),
         ParamSpec("r1_delta", 50.0, 3500.0, True, "R1 weight of the steering rate"),
         ParamSpec("r3", 4.0, 400.0, True, "R3 = diag(r3, r3): pull towards the profile speed"),
-        ParamSpec("gamma", 4.0, 400.0, True, "progress reward gamma"),
+        ParamSpec("gamma", 4.0, 1000.0, True, "progress reward gamma"),
         ParamSpec("lead_pose_s", 0.0, 0.08, False, "plan from the pose this far ahead [s]"),
         ParamSpec("grip_fraction", 0.93, 1.0, False, "the line's share of the tyres' mu"),
         ParamSpec("line_margin_m", 0.03, 0.08, False, "the line's footprint margin [m]"),

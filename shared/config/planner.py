@@ -68,14 +68,18 @@ MPCC_WEIGHTS = MethodWeights(
     r2_input=(40.0, 10.0, 40.0), u_ref=(3.3, 0.0, 3.0), r3_velocity=(0.0, 0.0)
 )
 #: cimpcc-line: CiMPCC's weights with a 7x lighter steering-rate weight (R1 delta 3500 ->
-#: 500): holding a line within centimetres needs the steering the centreline never asked for.
-CIMPCC_LINE_WEIGHTS = CIMPCC_WEIGHTS.model_copy(update={"r1_delta_u": (10.0, 500.0, 0.0)})
-#: ... with ``model = "kinematic_slip_speed"``: also 15x the progress reward (gamma 40 ->
-#: 600): against R3 = 40 it asks up to ``gamma Ts / (2 R3)`` = 0.37 m/s more than the
-#: 95 %-grip profile's speed (that model's planned speeds are the car's; the speed cap bounds
-#: them), i.e. it races nearer the full grip than its line. (Its overlay: README, "Laps at
-#: the limit".)
-CIMPCC_LINE_SPEED_WEIGHTS = CIMPCC_LINE_WEIGHTS.model_copy(update={"gamma": 600.0})
+#: 500: holding a line within centimetres needs the steering the centreline never asked for)
+#: and 12.5x the progress reward (gamma 40 -> 500): against R3 = 40 it asks up to
+#: ``gamma Ts / (2 R3)`` = 0.31 m/s more than the 95 %-grip profile's speed (the speed-state
+#: model's planned speeds are the car's; the speed cap bounds them), i.e. it races nearer
+#: the full grip than its line.
+CIMPCC_LINE_WEIGHTS = CIMPCC_WEIGHTS.model_copy(
+    update={"r1_delta_u": (10.0, 500.0, 0.0), "gamma": 500.0}
+)
+#: ... of the light model (``model = "kinematic_slip"``, ``config/cimpcc-line-light.toml``):
+#: CiMPCC's progress reward (its commanded speeds are no car's speeds, and a larger reward
+#: only runs it wide).
+CIMPCC_LINE_LIGHT_WEIGHTS = CIMPCC_LINE_WEIGHTS.model_copy(update={"gamma": 40.0})
 
 
 class InputBounds(Section):
@@ -110,6 +114,7 @@ class SolverSettings(Section):
         max_iter: most solver iterations per solve.
         tol: the solver's convergence tolerance.
         mu_init: the solver's initial barrier parameter (interior point).
+        bound_push: the initial point's push into the inequalities' interior.
     """
 
     backend: Literal["fatrop", "ipopt"] = "fatrop"
@@ -121,6 +126,12 @@ class SolverSettings(Section):
     max_iter: int = Field(100, ge=1, le=10000)
     tol: float = Field(1e-4, gt=0.0, le=1.0)
     mu_init: float = Field(1e-3, gt=0.0, le=1e3)
+    bound_push: float | None = Field(
+        None, gt=0.0, le=1.0,
+        description="how far the solver pushes the initial point into the inequalities' "
+        "interior (its bound_push and bound_frac); a warm start near the solution keeps "
+        "more of itself with a small push; None: the back-end's default (1e-2)",
+    )
 
 
 class RacelineSettings(Section):
@@ -179,6 +190,23 @@ class RacelineSettings(Section):
     )
 
 
+class CimpccLineSolver(Section):
+    """``cimpcc-line``'s own solver tolerances (the rest is ``[planner.solver]``'s).
+
+    Warm-started from the shifted plan, its solution barely moves between ticks: a looser
+    tolerance, a larger first barrier parameter and a small push into the interior give the
+    same laps (17 laps on map416 and paperlike, to the millisecond) in about 1.3 fewer
+    iterations (``python -m benchmarks.solve_time --method cimpcc-line --plant sim``).
+    """
+
+    tol: float = Field(2e-2, gt=0.0, le=1.0, description="convergence tolerance")
+    mu_init: float = Field(1e-2, gt=0.0, le=1e3, description="initial barrier parameter")
+    bound_push: float | None = Field(
+        1e-6, gt=0.0, le=1.0,
+        description="push of the warm start into the interior (None: the back-end's)",
+    )
+
+
 class CimpccLineSettings(Section):
     """``cimpcc-line`` (issue #12): CiMPCC's cost contouring the car's minimum-time line.
 
@@ -190,24 +218,28 @@ class CimpccLineSettings(Section):
 
     weights: MethodWeights = Field(
         CIMPCC_LINE_WEIGHTS,
-        description="the paper's CiMPCC weights but R1 = diag(10, 500, 0) (with model "
-        "'kinematic_slip_speed' use gamma 600); v_up/v_low are unused (the speed profile "
-        "sets them per stage)",
+        description="the paper's CiMPCC weights but R1 = diag(10, 500, 0) and gamma 500 "
+        "(with model 'kinematic_slip' use gamma 40: config/cimpcc-line-light.toml); "
+        "v_up/v_low are unused (the speed profile sets them per stage)",
     )
-    horizon_steps: int = Field(10, ge=2, le=60, description="N of this method's problem")
+    horizon_steps: int = Field(
+        11, ge=2, le=60,
+        description="N of this method's problem (11 x 50 ms: 0.55 s ahead; N = 10 is "
+        "0.01 s a lap slower on map416, 12 leaves the track on paperlike)",
+    )
     model: Literal["kinematic", "kinematic_slip", "kinematic_slip_speed"] = Field(
-        "kinematic_slip",
+        "kinematic_slip_speed",
         description="'kinematic': the paper's bicycle (wheelbase_m); 'kinematic_slip': with "
-        "the car's steady-state tyre slip and wheelbase; 'kinematic_slip_speed': the slip "
-        "fitted up to the limit, and the car's speed a state behind its speed loop (v_l its "
-        "command; the line's tyre drag per stage) (services/planner/model.py): 0.4 % faster "
-        "on paperlike but solve p99 over 2 ms, so not the default",
+        "the car's steady-state tyre slip and wheelbase (the light model, 0.7 % slower); "
+        "'kinematic_slip_speed': the slip fitted up to the limit, and the car's speed a "
+        "state behind its speed loop (v_l its command; the line's tyre drag per stage) "
+        "(services/planner/model.py)",
     )
     lead_pose_s: float = Field(
-        0.04, ge=0.0, le=0.5,
+        0.05, ge=0.0, le=0.5,
         description="plan from the pose (and speed) predicted this far ahead with the acting "
-        "command (compute 2 + actuation 10 + steering 20 + servo ~10 ms; 0.045 found best "
-        "with model 'kinematic_slip_speed') [s]; 0: the measured pose",
+        "command (compute 2 + actuation 10 + steering 20 + servo ~10 ms; 0.04 found best "
+        "with model 'kinematic_slip') [s]; 0: the measured pose",
     )
     v_max_mps: float = Field(
         4.18, gt=1.0, le=100.0,
@@ -233,6 +265,20 @@ class CimpccLineSettings(Section):
         None, ge=0.0, le=2.0,
         description="... over its braking input [s]; None: 1 / speed_gain_brake_per_s",
     )
+    integrator: Literal["rk4", "rk2", "euler"] | None = Field(
+        "rk2",
+        description="this method's discretisation of its model (None: [planner] "
+        "integrator); 'rk2' (the midpoint rule) halves the speed-state model's derivatives "
+        "against 'rk4' for the same laps (0.002 s on map416)",
+    )
+    lifted: bool = Field(
+        False,
+        description="track limits and speed pulls on each stage's own state instead of the "
+        "prediction from the stage before (services/planner/problem.py: the same problem, "
+        "a third less solver time with model 'kinematic_slip'; no gain with the speed "
+        "state, whose solver then takes more iterations)",
+    )
+    solver: CimpccLineSolver = CimpccLineSolver()
 
 
 class RecoverySettings(Section):
@@ -276,7 +322,7 @@ class PlannerSettings(Section):
     dt_s: float = Field(
         0.05, gt=0.0, le=0.5, description="model step Ts [s]; also the planner period"
     )
-    integrator: Literal["rk4", "euler"] = "rk4"
+    integrator: Literal["rk4", "rk2", "euler"] = "rk4"
     wheelbase_m: float = Field(
         CAR.wheelbase_m, gt=0.05, le=2.0, description="L of the kinematic bicycle [m]"
     )

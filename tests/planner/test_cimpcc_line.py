@@ -27,11 +27,17 @@ from services.planner.model import (
     kinematic_bicycle,
     step_numpy,
 )
-from services.planner.planner import CIMPCC_LINE, SOLVED, Planner, min_time_reference
+from services.planner.planner import (
+    CIMPCC_LINE,
+    SOLVED,
+    Planner,
+    min_time_reference,
+    solver_settings,
+)
 from services.planner.problem import NV, NXA, XA_SPEED, ParamLayout, build_problem
 from services.planner.reference import CENTRELINE, MIN_TIME_LINE, ReferencePath
 from services.planner.service import plan_message
-from services.planner.solver import cache_key
+from services.planner.solver import cache_key, solver_options
 from services.planner.tracker import steady_state_steering
 from shared.config import load_config
 from shared.config.planner import (
@@ -147,8 +153,10 @@ def test_velocity_references_follow_the_profile_at_each_predicted_stage(circle_l
     res = planner.step(float(start[0]), float(start[1]), float(ref.path.heading_rad[0]))
     assert res.status == SOLVED
     np.testing.assert_array_equal(res.beta, 1.0)
+    n = planner.problem.horizon
+    drag = np.zeros(n) if planner.problem.has_speed else None
     p = planner._parameters(
-        np.zeros(planner.problem.nxa), res.beta, np.column_stack([[1.0] * 10, [2.0] * 10])
+        np.zeros(planner.problem.nxa), res.beta, np.column_stack([[1.0] * n, [2.0] * n]), drag
     )
     layout = planner.problem.layout
     np.testing.assert_array_equal(p[layout.slices["v_up"]], p[layout.slices["v_low"]])
@@ -226,7 +234,7 @@ def test_make_planner_builds_the_method(circle_line) -> None:
     x0 = planner.path.xy[5]
     res = planner.step(float(x0[0]), float(x0[1]), float(planner.path.heading_rad[5]))
     assert res.status == SOLVED and np.isfinite(res.command.speed_mps)
-    assert res.inputs.shape == (10, len(U))
+    assert res.inputs.shape == (UNCOMPILED.cimpcc_line.horizon_steps, len(U))
 
 
 # ---------------------------------------------------------------- the speed-loop model
@@ -328,3 +336,68 @@ def test_the_speed_estimate_follows_the_poses(circle_line) -> None:
     planner._estimate_speed(0.0, 0.0, 0.0)
     planner._v_est = 3.0
     assert planner._estimate_speed(3.0 * dt, 0.0, 0.0) > 3.0
+
+
+# ---------------------------------------------------------------- solving it fast
+def test_cimpcc_line_has_its_own_solver_tolerances_and_the_paper_methods_keep_theirs() -> None:
+    """``[planner.cimpcc_line.solver]`` reaches cimpcc-line's solver only: cimpcc and mpcc
+    (the reproduction) solve with ``[planner.solver]`` as before."""
+    settings = PlannerSettings()
+    own = settings.cimpcc_line.solver
+    line = solver_settings(settings, CIMPCC_LINE)
+    assert (line.tol, line.mu_init, line.bound_push) == (own.tol, own.mu_init, own.bound_push)
+    assert line.max_iter == settings.solver.max_iter and line.backend == settings.solver.backend
+    for method in ("cimpcc", "mpcc"):
+        assert solver_settings(settings, method) == settings.solver
+    assert settings.solver.bound_push is None  # the back-end's default push
+
+
+def test_the_bound_push_reaches_either_back_end_and_none_leaves_the_default(circle_line) -> None:
+    _, ref = circle_line
+    problem = build_problem(ref, UNCOMPILED)
+    for backend, key in (("fatrop", "fatrop"), ("ipopt", "ipopt")):
+        pushed = SolverSettings(backend=backend, bound_push=1e-6)
+        opts = solver_options(problem, pushed)[key]
+        assert opts["bound_push"] == opts["bound_frac"] == 1e-6
+        plain = solver_options(problem, SolverSettings(backend=backend))[key]
+        assert "bound_push" not in plain and "bound_frac" not in plain
+
+
+@pytest.mark.parametrize("model", ["kinematic_slip", "kinematic_slip_speed"])
+def test_the_lifted_problem_is_the_same_problem(circle_line, model: str) -> None:
+    """``lifted``: the track limits (and the speed pull) on each stage's own state instead of
+    on the prediction from the stage before. Once the gaps are closed it is the same problem:
+    the same plan from the same poses, in a smaller Hessian."""
+    track, ref = circle_line
+    plans = {}
+    for lifted in (False, True):
+        line = CimpccLineSettings(model=model, lifted=lifted)
+        settings = UNCOMPILED.model_copy(update={"cimpcc_line": line})
+        planner = Planner(track, settings, reference=ref)
+        assert planner.problem.signature.endswith("|lifted") == lifted
+        x0 = planner.path.xy[5] + np.array([0.0, 0.03])  # a little off the line
+        yaw = float(planner.path.heading_rad[5])
+        results = [planner.step(float(x0[0]), float(x0[1]), yaw) for _ in range(3)]
+        assert all(r.status == SOLVED for r in results)
+        plans[lifted] = results[-1]
+    a, b = plans[False], plans[True]
+    assert a.command.speed_mps == pytest.approx(b.command.speed_mps, abs=0.02)
+    assert a.command.steering_rad == pytest.approx(b.command.steering_rad, abs=0.005)
+    np.testing.assert_allclose(a.states[:, :2], b.states[:, :2], atol=0.01)
+
+
+def test_the_lifted_problem_keeps_one_copy_of_the_models_derivatives(circle_line) -> None:
+    _, ref = circle_line
+    slip = SlipModel.for_vehicle(F1TENTH_GYM)
+    sizes = {}
+    for lifted in (False, True):
+        problem = build_problem(ref, UNCOMPILED, slip, lifted=lifted)
+        nlp = problem.nlp
+        lam = ca.SX.sym("lam", nlp["g"].shape[0])
+        hess = ca.hessian(nlp["f"] + ca.dot(lam, nlp["g"]), nlp["x"])[0]
+        sizes[lifted] = ca.Function("h", [nlp["x"], nlp["p"], lam], [hess]).n_instructions()
+        # the same constraints, counted the same way; stage 0's slack is unused when lifted
+        assert problem.lbg.size == build_problem(ref, UNCOMPILED, slip).lbg.size
+        slack0 = problem.input_index(0).start + 3
+        assert problem.ubw[slack0] == (0.0 if lifted else np.inf)
+    assert sizes[True] < 0.8 * sizes[False]

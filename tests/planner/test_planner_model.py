@@ -62,3 +62,30 @@ def test_euler_is_first_order() -> None:
     )
     with pytest.raises(ValueError):
         discretise(kinematic_bicycle(L), 0.1, "midpoint")
+
+
+def test_rk2_is_the_midpoint_rule_and_second_order() -> None:
+    """``rk2``: one step is the midpoint rule; on the exact circle its error over a fixed
+    time shrinks 4x when the step halves (euler's: 2x)."""
+    f = kinematic_bicycle(L)
+    x0, u = np.array([0.0, 0.0, 0.5, 1.0]), np.array([2.0, 0.2, 1.5])
+    mid = x0 + 0.05 * np.asarray(f(x0, u)).ravel()
+    np.testing.assert_allclose(
+        step_numpy(discretise(f, 0.1, "rk2"), x0, u),
+        x0 + 0.1 * np.asarray(f(mid, u)).ravel(),
+        atol=1e-12,
+    )
+    v, d, t_end = 2.0, 0.2, 1.0
+    radius = L / np.tan(d)
+    phi = v * t_end / radius
+    exact = np.array([radius * np.sin(phi), radius * (1 - np.cos(phi))])
+
+    def error(method: str, dt: float) -> float:
+        F, x = discretise(f, dt, method), np.zeros(4)
+        for _ in range(round(t_end / dt)):
+            x = step_numpy(F, x, np.array([v, d, v]))
+        return float(np.hypot(*(x[:2] - exact)))
+
+    assert error("rk2", 0.05) / error("rk2", 0.025) == pytest.approx(4.0, rel=0.1)
+    assert error("euler", 0.05) / error("euler", 0.025) == pytest.approx(2.0, rel=0.1)
+    assert error("rk2", 0.05) < 1e-3

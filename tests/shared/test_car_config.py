@@ -46,10 +46,11 @@ def test_the_commented_alternatives_are_valid_too() -> None:
     assert tried >= 2 and base  # the Ethernet lidar port and the laptop listen endpoint
 
 
-def test_the_cimpcc_line_speed_overlay_is_the_speed_model_with_cimpcc_lines_weights() -> None:
-    """config/cimpcc-line-speed.toml: the model README's "Laps at the limit" measures."""
-    from shared.config.planner import CIMPCC_LINE_SPEED_WEIGHTS
+def test_the_cimpcc_line_light_overlay_is_the_slip_model_with_cimpccs_progress_reward() -> None:
+    """config/cimpcc-line-light.toml: the light model README's "Laps at the limit" measures."""
+    from shared.config.planner import CIMPCC_LINE_LIGHT_WEIGHTS
 
-    line = load_config(CAR_TOML.parent / "cimpcc-line-speed.toml").planner.cimpcc_line
-    assert line.model == "kinematic_slip_speed" and line.lead_pose_s == 0.045
-    assert line.weights == CIMPCC_LINE_SPEED_WEIGHTS
+    line = load_config(CAR_TOML.parent / "cimpcc-line-light.toml").planner.cimpcc_line
+    assert line.model == "kinematic_slip" and line.lead_pose_s == 0.04
+    assert line.integrator == "rk4" and line.horizon_steps == 10 and line.lifted
+    assert line.weights == CIMPCC_LINE_LIGHT_WEIGHTS
