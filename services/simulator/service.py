@@ -80,6 +80,12 @@ TRUTH_RATE_HZ = 50.0
 START_OFFSET_M = -0.3
 #: A loop iteration later than this behind real time is counted as an overrun [s].
 OVERRUN_S = 0.02
+#: Further behind real time than this [s], the simulation skips ahead instead of catching
+#: up: the clocks are re-anchored so that its stamps are fresh again (the car's motion
+#: stays integrated step by step; the simulation then runs slower than real time). Without
+#: it a loaded machine kept the simulator behind for good, its stamps too old for the
+#: bridge (0.5 s history) and its state too old for the planner (100 ms: it brakes).
+MAX_LAG_S = 0.05
 #: Key under which faults of the car's state are counted in ``bus.faults`` (not a bus key).
 STATE_FAULT_KEY = "car state"
 #: Shortest interval between two ``events/log`` lines about fault resets [s].
@@ -146,6 +152,8 @@ class SimulatorService(Service):
         self.paused = False
         self.stopped = False  #: off_track_policy "stop" acted: commands are ignored
         self.overruns = 0
+        self.skips = 0  #: times it was more than MAX_LAG_S behind and skipped ahead
+        self.skipped_s = 0.0  #: wall time skipped in all [s]
         self.fault_resets = 0  #: resets because the car's state left the contract
         self.off_track_actions = 0  #: off-track events the policy acted on (or let pass)
         self._next_truth = 0.0
@@ -342,8 +350,11 @@ class SimulatorService(Service):
         )
         self.run(stop)
         self.log.info(
-            "stopping (%d real-time overruns, %d own faults, %d fault resets, %d off-track)",
+            "stopping (%d real-time overruns, %d skips ahead (%.2f s), %d own faults, "
+            "%d fault resets, %d off-track)",
             self.overruns,
+            self.skips,
+            self.skipped_s,
             self.faults.total,
             self.fault_resets,
             self.off_track_actions,
@@ -378,6 +389,17 @@ class SimulatorService(Service):
                 stop.wait(delay)
             elif delay < -OVERRUN_S:
                 self.overruns += 1
+                if delay < -MAX_LAG_S:  # too far behind to catch up: skip ahead
+                    t0_mono -= delay
+                    self.t0_wall -= delay
+                    self.skips += 1
+                    self.skipped_s -= delay
+                    if math.log10(self.skips).is_integer():  # 1st, 10th, 100th, ...
+                        self.log.warning(
+                            "%.2f s behind real time: the simulation skips ahead (%d times, "
+                            "%.2f s in all; the machine is too loaded for real time)",
+                            -delay, self.skips, self.skipped_s,
+                        )
             if res is not None:
                 self.publish(res)
 
