@@ -258,7 +258,8 @@ def discretise(f: ca.Function, dt_s: float, integrator: str = "rk4") -> ca.Funct
     Args:
         f: continuous dynamics ``f(x, u)``.
         dt_s: step Ts [s].
-        integrator: ``"rk4"`` (classic 4-stage Runge-Kutta) or ``"euler"`` (forward Euler, as
+        integrator: ``"rk4"`` (classic 4-stage Runge-Kutta), ``"rk2"`` (the midpoint rule:
+            half RK4's evaluations, ``cimpcc-line``'s default) or ``"euler"`` (forward Euler, as
             the authors' code).
     """
     x = ca.SX.sym("x", f.size1_in(0))

@@ -17,6 +17,10 @@ Constraints, in order: gap 0, the initial-state equality, path constraints of st
 gap k and path constraints of stage k for k = 1..N-1. The path constraints keep the NEXT
 predicted position inside the track, softened by the slack of that stage:
 ``-(w_left - margin) - slack <= e_con(F(xa_k, ua_k)) <= (w_right - margin) + slack``.
+The lifted layout (``build_problem(lifted=True)``, ``cimpcc-line``'s option) keeps them on
+the stage's own state ``xa_k`` instead (k = 1..N-1, and ``F(xa_{N-1}, ua_{N-1})`` at the last
+stage): the same problem once the gaps are closed, with the model's second derivatives in
+each stage once.
 
 The reference path is an argument of the builder (``reference.ReferencePath``): the track's
 centreline (the paper's CiMPCC and MPCC) or the minimum-time line (``cimpcc-line``), each a

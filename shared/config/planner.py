@@ -308,8 +308,8 @@ class PlannerSettings(Section):
     """The CiMPCC / MPCC planner: one problem, two weight sets.
 
     Attributes:
-        integrator: discretisation of the model over dt_s: "rk4" (4th-order Runge-Kutta)
-            or "euler".
+        integrator: discretisation of the model over dt_s: "rk4" (4th-order Runge-Kutta),
+            "rk2" (the midpoint rule) or "euler".
     """
 
     method: Literal["cimpcc", "mpcc", "raceline", "cimpcc-line"] = Field(
