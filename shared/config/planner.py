@@ -223,14 +223,15 @@ class CimpccLineSettings(Section):
         "v_up/v_low are unused (the speed profile sets them per stage)",
     )
     horizon_steps: int = Field(
-        11, ge=2, le=60,
-        description="N of this method's problem (11 x 50 ms: 0.55 s ahead; N = 10 is "
-        "0.01 s a lap slower on map416, 12 leaves the track on paperlike)",
+        10, ge=2, le=60,
+        description="N of this method's problem (10 x 50 ms: 0.5 s ahead, as the paper's; "
+        "N = 11 is 0.009 s a lap faster on map416 but left the track once in 17 laps with "
+        "the EKF's poses, 12 leaves it on paperlike)",
     )
     model: Literal["kinematic", "kinematic_slip", "kinematic_slip_speed"] = Field(
         "kinematic_slip_speed",
         description="'kinematic': the paper's bicycle (wheelbase_m); 'kinematic_slip': with "
-        "the car's steady-state tyre slip and wheelbase (the light model, 0.7 % slower); "
+        "the car's steady-state tyre slip and wheelbase (the light model, 0.6-0.8 % slower); "
         "'kinematic_slip_speed': the slip fitted up to the limit, and the car's speed a "
         "state behind its speed loop (v_l its command; the line's tyre drag per stage) "
         "(services/planner/model.py)",
