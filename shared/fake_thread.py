@@ -11,8 +11,12 @@ from __future__ import annotations
 import contextlib
 import os
 import queue
+import shutil
+import tempfile
 import threading
 from collections.abc import Callable
+from pathlib import Path
+from typing import Self
 
 #: Longest a request to the fake's thread may take before it is reported as failed [s].
 REQUEST_TIMEOUT_S = 2.0
@@ -102,3 +106,63 @@ class RequestPipe:
         for fd in (self._r, self._w):
             with contextlib.suppress(OSError):
                 os.close(fd)
+
+
+class FakeDevice:
+    """What the fake devices share around their thread: the request pipe, the stop flag,
+    the thread itself and the folder of their stable link (removed on close if theirs).
+
+    A subclass calls ``_init_device`` first in its ``__init__``, plugs its device, then
+    ``_start``; it provides ``_run`` (the thread) and ``_unplug`` (release the device).
+    """
+
+    _requests: RequestPipe
+    _stop: threading.Event
+    _thread: threading.Thread
+    _dir: Path
+    _own_dir: bool
+
+    def _init_device(self, name: str, link_dir: str | Path | None, prefix: str) -> None:
+        """The request pipe named `name` and the link folder: `link_dir`, or a new
+        temporary one named with `prefix` (removed by ``close``)."""
+        self._requests = RequestPipe(name)
+        self._stop = threading.Event()
+        self._own_dir = link_dir is None
+        self._dir = Path(link_dir) if link_dir is not None else Path(tempfile.mkdtemp(prefix))
+
+    def _start(self, thread_name: str) -> None:
+        """Start the fake's thread (``_run``)."""
+        self._thread = threading.Thread(target=self._run, name=thread_name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:  # pragma: no cover - every fake has its own
+        raise NotImplementedError
+
+    def _unplug(self) -> None:  # pragma: no cover - every fake has its own
+        raise NotImplementedError
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        """Stop the thread (joined up to ``timeout_s`` [s]) and release everything: the
+        device, the request pipe and (if the fake made it) the link folder."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._wake()
+        self._thread.join(timeout_s)
+        self._unplug()
+        self._requests.close()
+        if self._own_dir:
+            shutil.rmtree(self._dir, ignore_errors=True)
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _wake(self) -> None:
+        self._requests.wake()
+
+    def _request(self, action: Callable[[], object]) -> None:
+        """Run `action` on the fake's thread and wait for it (``RequestPipe.request``)."""
+        self._requests.request(action, not self._stop.is_set() and self._thread.is_alive())

@@ -20,19 +20,17 @@ from __future__ import annotations
 import contextlib
 import os
 import select
-import shutil
 import socket
-import tempfile
 import threading
 import time
 import tty
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from shared.fake_thread import RequestPipe, pty_available  # noqa: F401 (re-exported)
+from shared.fake_thread import FakeDevice, RequestPipe, pty_available  # noqa: F401 (re-exported)
 from shared.hokuyo.fake import FakeHokuyoModel
 
 _IDLE_POLL_S = 0.05
@@ -42,7 +40,7 @@ _WRITE_WAIT_S = 0.2
 
 
 
-class FakeHokuyo:
+class FakeHokuyo(FakeDevice):
     """A Hokuyo stand-in (module docstring); a context manager, or call ``close()``.
 
     Args:
@@ -74,30 +72,25 @@ class FakeHokuyo:
         self.transport = transport
         self._t0 = time.monotonic()
         self._lock = threading.RLock()
-        self._requests = RequestPipe("the fake Hokuyo")
-        self._stop = threading.Event()
         self.sent: list[tuple[int, float]] = []
         self.bytes_dropped = 0
         self.connections = 0  #: TCP clients accepted / pty plugs
         self.thread_error: BaseException | None = None
-        self._own_dir = False
         self._master: int | None = None
         self._slave: int | None = None
         self._listen: socket.socket | None = None
         self._client: socket.socket | None = None
         self._port = port
         if transport == "pty":
-            self._own_dir = link_dir is None
-            self._dir = Path(link_dir) if link_dir else Path(tempfile.mkdtemp("fake-hokuyo"))
+            self._init_device("the fake Hokuyo", link_dir or None, "fake-hokuyo")
             self.address = str(self._dir / "hokuyo")
         elif transport == "tcp":
-            self._dir = Path(".")
+            self._init_device("the fake Hokuyo", ".", "fake-hokuyo")
             self.address = ""
         else:
             raise ValueError(f"transport must be 'pty' or 'tcp', not {transport!r}")
         self._plug()
-        self._thread = threading.Thread(target=self._run, name="fake-hokuyo", daemon=True)
-        self._thread.start()
+        self._start("fake-hokuyo")
 
     # -- public API ---------------------------------------------------------------------------
     def now_s(self) -> float:
@@ -137,31 +130,7 @@ class FakeHokuyo:
         """Plug back in (pty: a new pty behind the symlink; TCP: listening again)."""
         self._request(self._plug)
 
-    def close(self, timeout_s: float = 2.0) -> None:
-        """Stop the thread (joined up to ``timeout_s`` [s]) and release everything."""
-        if self._stop.is_set():
-            return
-        self._stop.set()
-        self._wake()
-        self._thread.join(timeout_s)
-        self._unplug()
-        self._requests.close()
-        if self._own_dir:
-            shutil.rmtree(self._dir, ignore_errors=True)
-
-    def __enter__(self) -> FakeHokuyo:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
     # -- the thread's side ----------------------------------------------------------------------
-    def _wake(self) -> None:
-        self._requests.wake()
-
-    def _request(self, action: Callable[[], object]) -> None:
-        self._requests.request(action, not self._stop.is_set() and self._thread.is_alive())
-
     def _plug(self) -> None:
         if self.transport == "pty":
             if self._master is not None:

@@ -20,8 +20,6 @@ from __future__ import annotations
 import contextlib
 import os
 import select
-import shutil
-import tempfile
 import threading
 import time
 import tty
@@ -29,7 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from shared.fake_thread import RequestPipe, pty_available  # noqa: F401 (re-exported)
+from shared.fake_thread import FakeDevice, RequestPipe, pty_available  # noqa: F401 (re-exported)
 from shared.vesc.fake import (
     DEFAULT_FIRMWARE_TIMEOUT_S,
     DEFAULT_VALUES,
@@ -71,7 +69,7 @@ def _model_setting(name: str, doc: str) -> Any:
     return property(get, put, doc=doc)
 
 
-class FakeVesc:
+class FakeVesc(FakeDevice):
     """A VESC stand-in on a pty; use as a context manager or call ``close()``.
 
     Reading the applied commands: ``motor_state()`` (a consistent ``FakeMotorState``), the
@@ -141,20 +139,16 @@ class FakeVesc:
             reply_imu=reply_imu,
         )
         self._clock = clock
-        self._own_dir = link_dir is None
-        self._dir = Path(link_dir) if link_dir is not None else Path(tempfile.mkdtemp("fake-vesc"))
+        self._init_device("the fake VESC", link_dir, "fake-vesc")
         self.path = str(self._dir / "vesc")
         self._cond = threading.Condition(threading.RLock())
-        self._requests = RequestPipe("the fake VESC")
-        self._stop = threading.Event()
         self._master: int | None = None
         self._slave: int | None = None
         self.device_path: str | None = None
         self.bytes_dropped = 0
         self.thread_error: BaseException | None = None
         self._plug()
-        self._thread = threading.Thread(target=self._run, name="fake-vesc", daemon=True)
-        self._thread.start()
+        self._start("fake-vesc")
 
     # -- public API --------------------------------------------------------------------------
     @property
@@ -228,31 +222,6 @@ class FakeVesc:
     def inject(self, data: bytes) -> None:
         """Write raw bytes (e.g. garbage) to the driver, between the fake's own replies."""
         self._request(lambda: self._write(data))
-
-    def close(self, timeout_s: float = 2.0) -> None:
-        """Stop the thread (joined with ``timeout_s`` [s]), close the pty, remove the link."""
-        if self._stop.is_set():
-            return
-        self._stop.set()
-        self._wake()
-        self._thread.join(timeout_s)
-        self._unplug()
-        self._requests.close()
-        if self._own_dir:
-            shutil.rmtree(self._dir, ignore_errors=True)
-
-    def __enter__(self) -> FakeVesc:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    # -- requests to the fake's thread -------------------------------------------------------
-    def _wake(self) -> None:
-        self._requests.wake()
-
-    def _request(self, action: Callable[[], object]) -> None:
-        self._requests.request(action, not self._stop.is_set() and self._thread.is_alive())
 
     # -- pty (only on the fake's thread after start) -----------------------------------------
     def _plug(self) -> None:
