@@ -24,10 +24,10 @@ import time
 
 import numpy as np
 
-from services.bench import LoopOptions, SimulatorPlant, race
 from services.localization_bridge import FusedEstimator
 from services.planner import RacelinePlanner
 from services.simulator import SensorSuite, StepResult, rear_axle
+from services.tools.bench import LoopOptions, SimulatorPlant, race
 from shared.config import load_config
 from shared.config.simulator import PoseSensorSettings
 from shared.track import load_track

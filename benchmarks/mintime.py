@@ -18,7 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from services.planner.mintime import MinTimeLap, MinTimeSettings, solve_min_time
+from services.planner.mintime.ocp import MinTimeLap, MinTimeSettings, solve_min_time
 from shared.config import load_config
 from shared.track import load_track
 

@@ -6,7 +6,7 @@
 
 Solves (or loads from the cache) the minimum-time lap, feeds its line and speeds forward
 into ``services.simulator.Simulator`` (default settings) with the small feedback of
-``services.bench.replay``, times flying laps with the bench's ``LapTimer`` and prints each
+``services.tools.bench.replay``, times flying laps with the bench's ``LapTimer`` and prints each
 lap, its difference from the OCP's time, the off-track events and the largest distance
 from the optimal line. Prints figures only.
 """
@@ -17,9 +17,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from services.bench.replay import ReplayOptions, replay_min_time
-from services.planner.mintime import MinTimeSettings
-from services.planner.mintime_store import min_time_lap
+from services.planner.mintime.ocp import MinTimeSettings
+from services.planner.mintime.store import min_time_lap
+from services.tools.bench.replay import ReplayOptions, replay_min_time
 from shared.config import load_config
 from shared.track import load_track
 

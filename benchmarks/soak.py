@@ -173,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     subprocess.run([str(Path(sys.executable).parent / "rerun"), "analytics", "disable"],
                    env=env, capture_output=True, timeout=60)
     log_path = out / "up.log"
-    cmd = [sys.executable, "-m", "services.cli", "up", "--config", str(toml),
+    cmd = [sys.executable, "-m", "services.tools.cli", "up", "--config", str(toml),
            "--laps", str(args.laps), "--run-dir", str(run_dir)]
     print(f"soak: {args.minutes:g} min on {args.track}; {' '.join(cmd)}; log {log_path}",
           flush=True)

@@ -26,9 +26,9 @@ import time
 
 import numpy as np
 
-from services.bench import LoopOptions, ModelPlant, race
-from services.bench.closed_loop import SimulatorPlant
 from services.planner import Planner
+from services.tools.bench import LoopOptions, ModelPlant, race
+from services.tools.bench.closed_loop import SimulatorPlant
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.track import TrackError, load_track
 

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.launcher.supervisor import Supervisor, service_argv
+from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import DriveCmd, Odom, Plan, Pose, State

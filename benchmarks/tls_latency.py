@@ -28,7 +28,7 @@ import numpy as np
 
 from benchmarks.stack_latency import SERVICES, _stats, summarise
 from benchmarks.stack_latency import run as run_plain
-from services.launcher.supervisor import Supervisor, service_argv
+from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import DriveCmd, Odom, Plan, Pose

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from services.launcher.supervisor import stop_process
+from services.tools.launcher.supervisor import stop_process
 from shared.bus import Bus
 from shared.config import load_config
 from shared.config.vesc import VescSettings

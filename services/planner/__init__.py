@@ -9,18 +9,15 @@ services.planner``). What tools may use (``docs/architecture.md``, rule 3) is ``
   ``step_numpy``;
 - the minimum-time lap (``MinTimeLap``, ``MinTimeSettings``, ``MinTimeError``,
   ``min_time_lap``: solved once, then cached) and its tracker (``Tracker``, ...);
-- the ``racestack mintime`` command line (``mintime_parser``, ``mintime_main``).
 """
 
 from services.planner.interface import PlannerLike
 from services.planner.methods import make_planner
-from services.planner.mintime import MinTimeError, MinTimeLap, MinTimeSettings
-from services.planner.mintime_cli import build_parser as mintime_parser
-from services.planner.mintime_cli import main as mintime_main
-from services.planner.mintime_model import DELTA
-from services.planner.mintime_store import min_time_lap
-from services.planner.model import discretise, kinematic_bicycle, step_numpy
-from services.planner.planner import (
+from services.planner.mintime.model import DELTA
+from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
+from services.planner.mintime.store import min_time_lap
+from services.planner.mpc.model import discretise, kinematic_bicycle, step_numpy
+from services.planner.mpc.planner import (
     BRAKING,
     FALLBACK,
     RECOVERING,
@@ -29,9 +26,9 @@ from services.planner.planner import (
     Planner,
     SolveResult,
 )
-from services.planner.raceline import RacelinePlanner
+from services.planner.raceline.planner import RacelinePlanner
+from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import Recovery
-from services.planner.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 
 __all__ = [
     "BRAKING",
@@ -56,7 +53,5 @@ __all__ = [
     "kinematic_bicycle",
     "make_planner",
     "min_time_lap",
-    "mintime_main",
-    "mintime_parser",
     "step_numpy",
 ]

@@ -1,7 +1,7 @@
 """What every planner offers its callers: the planner service, the bench, the tuner, the CLI.
 
-``Planner`` (the MPC methods, ``services.planner.planner``) and ``RacelinePlanner`` (the
-raceline baseline, ``services.planner.raceline``) both implement ``PlannerLike``; callers
+``Planner`` (the MPC methods, ``services.planner.mpc.planner``) and ``RacelinePlanner`` (the
+raceline baseline, ``services.planner.raceline.planner``) both implement ``PlannerLike``; callers
 type against it instead of spelling out the union (``make_planner`` returns one).
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
-from services.planner.planner import DriveCommand, SolveResult
+from services.planner.mpc.planner import DriveCommand, SolveResult
 from services.planner.recovery import Recovery
 from shared.config.planner import PlannerSettings
 from shared.curvature import CurvatureProfile

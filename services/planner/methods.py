@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from services.planner.interface import PlannerLike
-from services.planner.planner import Planner
-from services.planner.raceline import RacelinePlanner
+from services.planner.mpc.planner import Planner
+from services.planner.raceline.planner import RacelinePlanner
 from shared.config.planner import CurvatureSettings, PlannerSettings
 from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track

@@ -5,7 +5,7 @@ its own arc length ``s`` and its half-widths to the REAL track's boundaries. Two
 
 - ``centreline_path(track)``: the track's centreline itself (the paper's CiMPCC and MPCC);
 - ``min_time_path(track, lap, ...)``: the minimum-time line of the simulated car
-  (``services.planner.mintime``), driven by its rear axle, with the lap's speed profile
+  (``services.planner.mintime.ocp``), driven by its rear axle, with the lap's speed profile
   along it (``cimpcc-line``).
 
 One interpolant ``ref(s) -> [x, y, phi, w_right, w_left]`` over the path tiled to
@@ -21,8 +21,8 @@ from enum import IntEnum
 import casadi as ca
 import numpy as np
 
-from services.planner.mintime import MinTimeLap
-from services.planner.mintime_model import INPUT_NAMES
+from services.planner.mintime.model import INPUT_NAMES
+from services.planner.mintime.ocp import MinTimeLap
 from shared.curvature import periodic_spline
 from shared.track import Track
 

@@ -135,8 +135,8 @@ class SolverSettings(Section):
 
 
 class RacelineSettings(Section):
-    """The raceline baseline (``services/planner/raceline.py``): line, speed, tracker
-    (``services/planner/tracker.py``)."""
+    """The raceline baseline (``services/planner/raceline/planner.py``): line, speed, tracker
+    (``services/planner/raceline/tracker.py``)."""
 
     line: Literal["min_time", "min_curvature"] = Field(
         "min_time",
@@ -210,10 +210,10 @@ class CimpccLineSolver(Section):
 class CimpccLineSettings(Section):
     """``cimpcc-line`` (issue #12): CiMPCC's cost contouring the car's minimum-time line.
 
-    The line and its speed profile are the minimum-time lap (``services.planner.mintime``)
+    The line and its speed profile are the minimum-time lap (``services.planner.mintime.ocp``)
     of the car, solved once per track and cached; the velocity pulls take the profile's
     speed at each predicted stage (beta = 1). Tuned on map416 and paperlike in the bench
-    (``services/planner/planner.py``, ``services/planner/reference.py``).
+    (``services/planner/mpc/planner.py``, ``services/planner/reference.py``).
     """
 
     weights: MethodWeights = Field(
@@ -234,7 +234,7 @@ class CimpccLineSettings(Section):
         "the car's steady-state tyre slip and wheelbase (the light model, 0.6-0.8 % slower); "
         "'kinematic_slip_speed': the slip fitted up to the limit, and the car's speed a "
         "state behind its speed loop (v_l its command; the line's tyre drag per stage) "
-        "(services/planner/model.py)",
+        "(services/planner/mpc/model.py)",
     )
     lead_pose_s: float = Field(
         0.05, ge=0.0, le=0.5,
@@ -275,7 +275,7 @@ class CimpccLineSettings(Section):
     lifted: bool = Field(
         False,
         description="track limits and speed pulls on each stage's own state instead of the "
-        "prediction from the stage before (services/planner/problem.py: the same problem, "
+        "prediction from the stage before (services/planner/mpc/problem.py: the same problem, "
         "a third less solver time with model 'kinematic_slip'; no gain with the speed "
         "state, whose solver then takes more iterations)",
     )

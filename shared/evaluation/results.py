@@ -13,7 +13,7 @@
      "reference": {"min_time_lap_s", "v_max_mps", ...}}
 
 ``reference`` (when the bench computed it) is the minimum-time lap of the simulator's car
-(``services.planner.mintime``); each method's ``ratio_to_min_time`` is its mean lap time
+(``services.planner.mintime.ocp``); each method's ``ratio_to_min_time`` is its mean lap time
 over that lap (1.0 would be the physical limit; below 1 is a bug).
 """
 

@@ -1,7 +1,7 @@
 """The simulated car's tyre and body-force equations, written once for floats and CasADi.
 
 The simulator integrates them (``services.simulator.dynamics``); the minimum-time lap
-(``services.planner.mintime``) optimises over the same expressions. See
+(``services.planner.mintime.ocp``) optimises over the same expressions. See
 ``shared.vehicle.single_track`` for the equations and where they come from.
 """
 

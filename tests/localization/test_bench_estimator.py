@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import math
 
-from services.bench import build_parser
-from services.bench.closed_loop import LoopOptions, SimulatorPlant
-from services.bench.estimation import InLoopEstimator
 from services.simulator import Command, centreline_pose, rear_axle
+from services.tools.bench import build_parser
+from services.tools.bench.closed_loop import LoopOptions, SimulatorPlant
+from services.tools.bench.estimation import InLoopEstimator
 from shared.config.localization import LocalizationSettings
 from shared.config.simulator import SimulatorSettings
 from shared.track import load_track

@@ -14,10 +14,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from services.bench import LoopOptions, run_method
-from services.bench.run import main as bench_main
 from services.planner.methods import make_planner
-from services.planner.model import (
+from services.planner.mpc.model import (
     SPEED,
     S,
     SlipModel,
@@ -27,18 +25,20 @@ from services.planner.model import (
     kinematic_bicycle,
     step_numpy,
 )
-from services.planner.planner import (
+from services.planner.mpc.planner import (
     CIMPCC_LINE,
     SOLVED,
     Planner,
     min_time_reference,
     solver_settings,
 )
-from services.planner.problem import NV, NXA, XA_SPEED, ParamLayout, build_problem
+from services.planner.mpc.problem import NV, NXA, XA_SPEED, ParamLayout, build_problem
+from services.planner.mpc.solver import cache_key, solver_options
+from services.planner.raceline.tracker import steady_state_steering
 from services.planner.reference import CENTRELINE, MIN_TIME_LINE, ReferencePath
 from services.planner.service import plan_message
-from services.planner.solver import cache_key, solver_options
-from services.planner.tracker import steady_state_steering
+from services.tools.bench import LoopOptions, run_method
+from services.tools.bench.run import main as bench_main
 from shared.config import load_config
 from shared.config.planner import (
     CIMPCC_WEIGHTS,

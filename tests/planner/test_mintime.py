@@ -8,10 +8,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import services.planner.mintime_store as store
-from services.planner.mintime import MinTimeError, MinTimeLap, MinTimeSettings, solve_min_time
-from services.planner.mintime_model import corner_offset, point_mass_speed, spatial_model
-from services.planner.mintime_track import reference_line, windowed_min
+import services.planner.mintime.store as store
+from services.planner.mintime.model import corner_offset, point_mass_speed, spatial_model
+from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings, solve_min_time
+from services.planner.mintime.track import reference_line, windowed_min
 from services.simulator.dynamics import SingleTrackModel
 from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track

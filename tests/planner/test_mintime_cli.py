@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services.cli import main as racestack_main
-from services.planner.mintime_cli import main
+from services.tools.cli import main as racestack_main
+from services.tools.mintime import main
 from shared.track import load_f1tenth_raceline
 
 

@@ -6,7 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from services.planner.model import S, U, discretise, kinematic_bicycle, step_numpy
+from services.planner.mpc.model import S, U, discretise, kinematic_bicycle, step_numpy
 
 L = 0.324
 

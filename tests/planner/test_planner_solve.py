@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services.bench import ModelPlant, race
 from services.planner import (
     BRAKING,
     FALLBACK,
@@ -18,8 +17,9 @@ from services.planner import (
     kinematic_bicycle,
     step_numpy,
 )
-from services.planner.problem import build_problem
-from services.planner.solver import make_solver
+from services.planner.mpc.problem import build_problem
+from services.planner.mpc.solver import make_solver
+from services.tools.bench import ModelPlant, race
 from shared.config.planner import PlannerSettings, SolverSettings
 from shared.track import Track, load_track
 

@@ -8,10 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from services.bench import ModelPlant, race
 from services.planner import BRAKING, SOLVED, SolveResult
-from services.planner.mintime import MinTimeLap
-from services.planner.raceline import (
+from services.planner.mintime.ocp import MinTimeLap
+from services.planner.raceline.planner import (
     RacelinePlanner,
     build_raceline,
     min_curvature_offsets,
@@ -20,6 +19,7 @@ from services.planner.raceline import (
     resample,
     speed_profile,
 )
+from services.tools.bench import ModelPlant, race
 from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM
 from shared.track import Track, load_track
@@ -110,7 +110,7 @@ def test_the_planner_service_can_run_the_baseline() -> None:
     """``[planner] method = "raceline"`` builds the baseline, and its results make valid
     ``planner/plan`` records (what the service publishes)."""
     from services.planner.methods import make_planner
-    from services.planner.planner import Planner
+    from services.planner.mpc.planner import Planner
     from services.planner.service import plan_message
 
     tr = load_track("paperlike")
@@ -147,7 +147,7 @@ def test_a_line_on_a_full_size_f1tenth_track(shared_tracks) -> None:
 
 
 def test_no_room_for_a_raceline_is_a_track_error_in_the_bench(tmp_path, capsys) -> None:
-    from services.bench.run import main
+    from services.tools.bench.run import main
 
     cfg = tmp_path / "c.toml"
     cfg.write_text('[planner.raceline]\nline = "min_curvature"\nmargin_m = 0.7\n')
@@ -275,7 +275,7 @@ def test_the_planning_car_has_the_planner_s_steering_range() -> None:
 
 
 def _race(track: Track, laps: int):
-    from services.bench import LoopOptions, run_method
+    from services.tools.bench import LoopOptions, run_method
     from shared.config import load_config
 
     cfg = load_config(None)

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from services.bench import LoopOptions, run_method
-from services.planner.planner import RECOVERING, SOLVED, Planner
+from services.planner.mpc.planner import RECOVERING, SOLVED, Planner
 from services.planner.recovery import Recovery
+from services.tools.bench import LoopOptions, run_method
 from shared.config import RacestackConfig
 from shared.config.planner import PlannerSettings, RecoverySettings
 from shared.config.simulator import SimulatorSettings

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from services.planner.planner import DriveCommand, SolveResult
+from services.planner.mpc.planner import DriveCommand, SolveResult
 from services.planner.service import BrakeDeadline, PlannerShell
 from shared.config.planner import PlannerSettings
 from shared.fake_bus import FakeBus

@@ -1,5 +1,5 @@
-"""The tracker (``services.planner.tracker``): its law on the plan, and the simulated car on
-a straight, on a circle at the grip limit and through the proportional speed loop, at the
+"""The tracker (``services.planner.raceline.tracker``): its law on the plan, and the simulated
+car on a straight, on a circle at the grip limit and through the proportional speed loop, at the
 raceline planner's 20 Hz with the bench's 2 ms compute delay."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from services.planner.raceline import planner_timing, tracker_gains
-from services.planner.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
+from services.planner.raceline.planner import planner_timing, tracker_gains
+from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.simulator import Command, Simulator
 from shared.config.planner import PlannerSettings
 from shared.config.simulator import SimulatorSettings
@@ -19,7 +19,7 @@ from shared.track import Track
 
 CAR = F1TENTH_GYM
 SETTINGS = PlannerSettings()
-#: The bench's compute delay [s] (``services.bench.closed_loop``).
+#: The bench's compute delay [s] (``services.tools.bench.closed_loop``).
 COMPUTE_DELAY_S = 0.002
 
 

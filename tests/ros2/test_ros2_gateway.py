@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from services.launcher.supervisor import Supervisor, service_argv
 from services.ros2_gateway.convert import stamp_to_s, yaw_of
 from services.ros2_gateway.naming import HUMBLE_TYPE_HASH, parse_attachment
 from services.ros2_gateway.typestore import make_typestore
+from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.keys import Keys

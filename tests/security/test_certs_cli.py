@@ -10,7 +10,7 @@ from pathlib import Path
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
-from services.cli import main
+from services.tools.cli import main
 from shared.security import IDENTITIES
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -51,7 +51,7 @@ def test_unusable_folder_is_one_line_exit_2(tmp_path: Path) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("x")
     r = subprocess.run(
-        [sys.executable, "-m", "services.cli", "certs", "--out", str(blocker / "certs")],
+        [sys.executable, "-m", "services.tools.cli", "certs", "--out", str(blocker / "certs")],
         cwd=ROOT, capture_output=True, text=True, timeout=60,
     )
     assert r.returncode == 2

@@ -25,9 +25,9 @@ from typing import Any
 
 import pytest
 
-from services.launcher.supervisor import Supervisor, service_argv
 from services.ros2_gateway.convert import decode_cdr, quaternion_of, stamp_from_s
 from services.ros2_gateway.typestore import make_typestore
+from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import LogEvent, Pose, State

@@ -7,13 +7,13 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.up import Launcher
 from services.localization_bridge.service import BridgeService
 from services.planner.service import PlannerShell
 from services.router.denials import Denial, DenialParser, growth_text
 from services.router.service import Router
 from services.simulator.service import SimulatorService
 from services.telemetry.service import TelemetryService
+from services.tools.launcher.up import Launcher
 from services.vesc_driver.service import VescService
 from shared.config import ConfigError, config_from_dict
 from shared.keys import DRIVE_CMD, SIM_CONTROL, STATE, TOPIC_TYPES, Keys

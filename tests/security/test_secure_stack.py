@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from services.launcher.supervisor import stop_process
+from services.tools.launcher.supervisor import stop_process
 from shared.bus import Bus, BusOpenError
 from shared.config import config_from_dict
 from shared.messages import DriveCmd, LogEvent, SimTruth
@@ -81,7 +81,7 @@ def test_secure_profile_refuses_strangers_denies_intruders_and_races_clean(
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "xdg")}
     env.pop("RACESTACK_CERTS_DIR", None)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "up", "--laps", "1", "--config", str(cfg_path),
+        [sys.executable, "-m", "services.tools.cli", "up", "--laps", "1", "--config", str(cfg_path),
          "--run-dir", str(tmp_path / "run")],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )

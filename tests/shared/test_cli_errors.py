@@ -1,7 +1,7 @@
 """Issue #16: every bad start of a command is ONE clear line on stderr, exit code 2, nothing
 started, no folder left behind, no traceback.
 
-The argument errors run ``services.cli.main`` in this process; the cases that open a Zenoh
+The argument errors run ``services.tools.cli.main`` in this process; the cases that open a Zenoh
 session (a busy hub port, a hub nobody can reach) run the real command as a subprocess
 (slow-marked) so that everything it prints is seen. A busy port is a plain TCP socket
 bound here: no stack has to run.
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from services import cli
+from services.tools import cli
 from shared.config import BusSettings
 from shared.net import free_loopback_port
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
@@ -55,9 +55,9 @@ def _one_line(err: str) -> str:
 
 
 def _run(args: list[str], timeout_s: float = CMD_TIMEOUT_S) -> subprocess.CompletedProcess:
-    """The real command line (``python -m services.cli ...``), killed after `timeout_s`."""
+    """The real command line (``python -m services.tools.cli ...``), killed after `timeout_s`."""
     env = {**os.environ, "MPLBACKEND": "Agg"}
-    return subprocess.run([sys.executable, "-m", "services.cli", *args], cwd=ROOT, env=env,
+    return subprocess.run([sys.executable, "-m", "services.tools.cli", *args], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=timeout_s,
                           stdin=subprocess.DEVNULL)
 
@@ -252,7 +252,7 @@ def test_cli_run_service_without_hub_says_so_once_and_keeps_waiting(tmp_path: Pa
     port = free_loopback_port()
     cfg = _config(tmp_path, port)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "run", "localization_bridge", "--config",
+        [sys.executable, "-m", "services.tools.cli", "run", "localization_bridge", "--config",
          str(cfg)], cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE, text=True,
     )

@@ -7,7 +7,7 @@ import argparse
 
 import pytest
 
-from services import cli
+from services.tools import cli
 
 
 def _help(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:

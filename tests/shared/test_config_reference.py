@@ -6,8 +6,13 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
+from services.tools.config_reference import (
+    GENERATOR,
+    docstring_attributes,
+    iter_keys,
+    render_markdown,
+)
 from shared.config import RacestackConfig
-from shared.config.reference import GENERATOR, docstring_attributes, iter_keys, render_markdown
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "configuration.md"

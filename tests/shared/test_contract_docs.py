@@ -15,7 +15,6 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.up import Launcher
 from services.lidar_driver.service import LidarService
 from services.localization_bridge.service import BridgeService
 from services.planner.service import PlannerShell
@@ -23,6 +22,7 @@ from services.ros2_gateway.service import Ros2GatewayService
 from services.router.service import Router
 from services.simulator.service import SimulatorService
 from services.telemetry.service import TelemetryService
+from services.tools.launcher.up import Launcher
 from services.vesc_driver.service import VescService
 from shared.keys import ALIVE, TOPIC_TYPES
 from shared.messages import REGISTRY

@@ -5,7 +5,7 @@
    vesc_driver, telemetry, router) imports no other service: they meet only on the bus.
 3. The tools that compose services in one process (bench, launcher, tune, cli) use only each
    service's public package API, the names its ``__init__`` lists in ``__all__``: never an
-   inner module such as ``services.planner.planner``.
+   inner module such as ``services.planner.mpc.planner``.
 4. Only ``shared/bus.py`` imports zenoh.
 
 Every violation is named (file:line, what it imports, which rule). ``KNOWN`` lists the ones
@@ -34,14 +34,14 @@ PROCESS_SERVICES = frozenset(
         "ros2_gateway",
     }
 )
-#: Tools that compose services in one process (``cli`` is ``services/cli.py``).
+#: Tools that compose services in one process (``cli`` is ``services/tools/cli.py``).
 TOOLS = frozenset({"bench", "launcher", "tune", "cli"})
 
 #: Violations that need files owned by others, as "importer -> imported" (no line numbers,
 #: so unrelated edits do not break the list). Remove an entry when its follow-up lands.
 KNOWN: frozenset[str] = frozenset()
 # (Follow-ups A-D of issue #11 landed: the planner, bench, tune, launcher and telemetry
-# packages export what the tools use; services/cli.py starts a service with runpy.)
+# packages export what the tools use; services/tools/cli.py starts a service with runpy.)
 
 
 @dataclass(frozen=True)
@@ -158,20 +158,20 @@ def violations() -> list[Violation]:
 
 def test_the_walker_sees_every_kind_of_import() -> None:
     src = (
-        "import services.planner.planner\n"
+        "import services.planner.mpc.planner\n"
         "from services.simulator import LapTimer, nothing_public\n"
         "def f():\n"
-        "    from services.bench.run import main\n"
+        "    from services.tools.bench.run import main\n"
         "    importlib.import_module(f'services.{x}.service')\n"
         "from . import sibling\n"
     )
-    got = sorted(_imports(ast.parse(src), Path("services/tune/x.py")))
+    got = sorted(_imports(ast.parse(src), Path("services/tools/tune/x.py")))
     assert got == [
-        (1, "services.planner.planner", []),
+        (1, "services.planner.mpc.planner", []),
         (2, "services.simulator", ["LapTimer", "nothing_public"]),
-        (4, "services.bench.run", ["main"]),
+        (4, "services.tools.bench.run", ["main"]),
         (5, "services.<name>.service (importlib)", []),
-        (6, "services.tune", ["sibling"]),
+        (6, "services.tools.tune", ["sibling"]),
     ]
     assert "LapTimer" in public_api("simulator")
     assert public_api("no_such_service") == frozenset()  # no __init__: no public API

@@ -11,8 +11,8 @@ import pytest
 from PIL import Image
 from scipy.spatial import cKDTree
 
+from services.tools.track import main as track_main
 from shared.track import TrackError, load_ros_map, load_track
-from shared.track.cli import main as track_main
 from shared.track.from_map import (
     MapTrackOptions,
     closed_length,
@@ -238,7 +238,7 @@ def test_the_f1tenth_maps_follow_their_published_centrelines(
 
 
 def test_racestack_track_is_a_subcommand(tmp_path: Path, capsys) -> None:
-    from services.cli import main as racestack
+    from services.tools.cli import main as racestack
 
     yaml = _write_map(tmp_path, _grid([_ellipse()]))
     assert racestack(["track", "--from-map", str(yaml), "--out", str(tmp_path / "o")]) == 0
@@ -252,8 +252,8 @@ def test_racestack_track_is_a_subcommand(tmp_path: Path, capsys) -> None:
 def test_the_track_extracted_from_map416_races_clean(shared_tracks: Path) -> None:
     """The raceline baseline (least-curvature line, fast to build) laps the extracted track
     against the kinematic model with the car's body inside the extracted borders."""
-    from services.bench import ModelPlant, race
     from services.planner import SOLVED, make_planner
+    from services.tools.bench import ModelPlant, race
     from shared.car import CAR
     from shared.config import load_config
 

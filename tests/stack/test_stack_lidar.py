@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.supervisor import stop_process
+from services.tools.launcher.supervisor import stop_process
 from shared.net import free_loopback_port
 
 pytestmark = pytest.mark.slow
@@ -32,7 +32,7 @@ def test_racestack_up_races_three_laps_on_the_lidar_filter(
     )
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "xdg")}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "up", "--laps", "3", "--config", str(cfg),
+        [sys.executable, "-m", "services.tools.cli", "up", "--laps", "3", "--config", str(cfg),
          "--run-dir", str(tmp_path / "run")],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )

@@ -31,7 +31,7 @@ from typing import Any
 
 import pytest
 
-from services.launcher.supervisor import Supervisor, service_argv
+from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import LapEvent, LogEvent, SimControl, SimTruth

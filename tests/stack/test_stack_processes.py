@@ -17,7 +17,7 @@ from pathlib import Path
 import msgpack
 import pytest
 
-from services.launcher.supervisor import Supervisor, service_argv
+from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import Imu, LapEvent, LogEvent, SimControl, SimTruth

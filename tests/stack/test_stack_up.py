@@ -19,9 +19,9 @@ import pyarrow as pa
 import pytest
 import rerun as rr
 
-from services.launcher.supervisor import stop_process
 from services.telemetry import find_segments
-from services.telemetry.report import lap_events, read_recording
+from services.tools.launcher.supervisor import stop_process
+from services.tools.report import lap_events, read_recording
 from shared.net import free_loopback_port
 
 pytestmark = pytest.mark.slow
@@ -37,7 +37,7 @@ def write_config(tmp: Path) -> Path:
 def launcher(args: list[str], tmp: Path) -> subprocess.Popen[str]:
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "xdg"), "XDG_DATA_HOME": str(tmp / "xdg")}
     return subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "up", *args],
+        [sys.executable, "-m", "services.tools.cli", "up", *args],
         cwd=ROOT,
         env=env,
         stdout=subprocess.PIPE,

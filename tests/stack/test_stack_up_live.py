@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.supervisor import stop_process
+from services.tools.launcher.supervisor import stop_process
 from shared.net import free_loopback_port
 
 pytestmark = pytest.mark.slow
@@ -36,7 +36,7 @@ def test_up_serve_line_progress_and_ctrl_c_table(tmp_path: Path) -> None:
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "xdg"),
            "XDG_DATA_HOME": str(tmp_path / "xdg")}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "up", "--laps", "3", "--serve", str(serve),
+        [sys.executable, "-m", "services.tools.cli", "up", "--laps", "3", "--serve", str(serve),
          "--config", str(cfg), "--run-dir", str(tmp_path / "run")],
         cwd=ROOT, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True,

@@ -27,11 +27,11 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from services.telemetry import report
 from services.telemetry.recorder import Recorder
 from services.telemetry.recording import open_segment, segment_path
 from services.telemetry.rrd_files import find_segments, read_store, readable_length
 from services.telemetry.synthetic import lap_stream, replay
+from services.tools import report
 from shared.bus import Bus
 from shared.config import load_config
 from shared.config.telemetry import TelemetrySettings

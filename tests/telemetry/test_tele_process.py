@@ -26,10 +26,10 @@ import pyarrow as pa
 import pytest
 import rerun as rr
 
-from services.launcher.supervisor import stop_process
-from services.telemetry import report
 from services.telemetry.rrd_files import find_segments
 from services.telemetry.synthetic import lap_stream, replay
+from services.tools import report
+from services.tools.launcher.supervisor import stop_process
 from shared.bus import Bus
 from shared.config import load_config
 from shared.config.telemetry import TelemetrySettings

@@ -14,7 +14,6 @@ import pydantic
 import pytest
 import rerun as rr
 
-from services.telemetry import report
 from services.telemetry.inbox import Inbox
 from services.telemetry.recorder import (
     SIM_TIME,
@@ -33,6 +32,7 @@ from services.telemetry.recording import (
     spawn_viewer,
 )
 from services.telemetry.synthetic import lap_stream
+from services.tools import report
 from shared.config.telemetry import TelemetrySettings
 from shared.curvature import curvature_profile
 from shared.keys import IMU, LAP, PLAN, SIM_TRUTH, STATE, VESC_STATE

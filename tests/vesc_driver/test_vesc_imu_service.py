@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.supervisor import stop_process
 from services.simulator.vesc_actuation import VescActuation
+from services.tools.launcher.supervisor import stop_process
 from services.vesc_driver.driver import ImuRecord, VescDriver
 from shared.bus import Bus
 from shared.config import load_config

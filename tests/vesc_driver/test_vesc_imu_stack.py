@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.supervisor import Supervisor, service_argv
+from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import Imu, LapEvent, SimControl, SimTruth, State

@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from services.launcher.supervisor import stop_process
 from services.simulator.vesc_actuation import VescActuation
+from services.tools.launcher.supervisor import stop_process
 from services.vesc_driver.driver import VescDriver
 from shared.bus import Bus
 from shared.config import ConfigError, load_config

@@ -1,8 +1,0 @@
-"""``racestack up``: the stack as one process per service, supervised, racing the simulator.
-
-What other tools use (``__all__``): ``UpOptions`` and ``run_up(cfg, opts, stop_requested)``.
-"""
-
-from services.launcher.up import UpOptions, run_up
-
-__all__ = ["UpOptions", "run_up"]

@@ -1,0 +1,541 @@
+"""The raceline baseline of the paper's Table I (RDM+OTG): a global line, a speed profile,
+a tracker. Pure maths; the only I/O is the minimum-time lap's disk cache, reached through an
+injectable loader (``services.planner.mintime.store.min_time_lap`` by default).
+
+The paper compares CiMPCC with a path-velocity decomposition: a minimum-curvature path
+(RDM, Braghin et al. 2008), a velocity plan (OTG, Werling et al. 2010) and a pursuit
+tracker (Becker et al. 2023). Ours, built once per track (``[planner.raceline] line``):
+
+- ``"min_time"`` (default): the **minimum-time lap** of the car (``services.planner.
+  mintime``: the car's own single-track model at its friction limits, top speed
+  ``v_max_mps``, footprint ``min_time_margin_m`` inside the boundaries, steering within
+  the planner's ``[planner.bounds] delta_rad``): its CoG path, speeds, acceleration demand
+  and steering. Solved once per track, car and settings, then cached.
+- ``"min_curvature"``: the line of least curvature (``min_curvature_offsets``): the
+  centreline resampled every ``ds_m``, each point moved along its left normal by
+  ``alpha_i``; minimise the integral of the squared curvature of the moved points,
+  subject to ``-(w_right - m) <= alpha_i <= w_left - m`` with ``m`` = ``margin_m`` (IPOPT
+  on the exact discrete curvature); then the speed (``speed_profile``): ``v <= min(v_max,
+  sqrt(a_lat / |kappa|))``, a forward pass with ``a_accel`` and a backward pass with
+  ``a_brake``, around the loop (Werling's OTG plans jerk-optimal quintics in a Frenet
+  frame; a forward-backward profile is the usual simplification); the steering fed
+  forward from the steady-state single-track model at the planned speed.
+
+Tracker (``services.planner.raceline.tracker``, the one the minimum-time replay uses): the car's
+CoG (from the rear-axle pose and ``l_r``) projected onto the line; the line's steering
+over the window the command will act in (``steering_delay_s`` after the pose, for one
+planner period) plus ``k_e`` times the lateral error of a point ``l_d = l_0 + T_l v``
+ahead; the speed command ``v_p + a_p / k`` through the car's proportional speed loop of
+gain ``k``, over the speed channel's window (``speed_delay_s``), with an acceleration cut
+when the car drifts to the outside of a bend. (Becker et al.'s model- and
+acceleration-based pursuit is the same idea.)
+
+``RacelinePlanner`` has the ``Planner`` interface the bench's closed loop uses (``step``,
+``reset``, ``settings``), so the bench races it like the MPC methods. It is given the car
+(``vehicle=``, a ``DynamicVehicleParams``; None: ``shared.config.vehicle.F1TENTH_GYM``,
+the simulator's default car); callers racing another car pass ``cfg.simulator.vehicle``.
+
+Measured (``racestack bench --laps 17 --methods raceline``, default car, 20 Hz, 2 ms
+compute delay): map416 7.213 s (1.012 x the 7.131 s minimum-time lap), paperlike 9.603 s
+(1.009 x 9.517 s), no off-track event; the ``min_curvature`` line with this tracker
+8.857 s / 11.458 s.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
+from services.planner.mpc.planner import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
+from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
+from services.planner.recovery import Recovery
+from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
+from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
+from shared.curvature import track_profile
+from shared.track import Track, TrackError
+
+METHOD = "raceline"
+#: IPOPT statuses accepted besides success: converged as far as its precision allows.
+NEAR_OPTIMAL = frozenset({"Solved_To_Acceptable_Level", "Search_Direction_Becomes_Too_Small"})
+
+
+#: Weight of the offset-smoothness term of the line's energy [1/m^3].
+SMOOTHNESS_WEIGHT = 1e-3
+#: The line keeps at most this share of the local bend radius on the inside of a bend.
+INSIDE_RADIUS_SHARE = 0.5
+
+
+class RacelineError(TrackError):
+    """No raceline can be built on this track with these settings (a clear, one-line error
+    in every shell, like any other unusable track)."""
+
+
+#: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
+MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
+
+
+@dataclass(frozen=True)
+class Raceline:
+    """A closed racing line with its speed profile and the tracker's plan.
+
+    Attributes:
+        track: the line as a ``Track`` (``xy`` the line, widths its distances to the
+            boundaries), for projection and interpolation.
+        offset_m: (n,) lateral offset of each point from the centreline [m] (left +).
+        curvature_1pm: (n,) signed curvature of the line [1/m].
+        speed_mps: (n,) planned speed at each point [m/s].
+        reference: the plan the tracker follows (on ``track``'s points).
+        kind: ``"min_time"`` or ``"min_curvature"``.
+        min_time: the minimum-time lap the line comes from (``kind == "min_time"``).
+    """
+
+    track: Track
+    offset_m: np.ndarray
+    curvature_1pm: np.ndarray
+    speed_mps: np.ndarray
+    reference: ReferenceLap
+    kind: str = "min_curvature"
+    min_time: MinTimeLap | None = None
+
+    def speed_at(self, s_m: float) -> float:
+        """Planned speed [m/s] at arc length `s_m` of the line (periodic)."""
+        s_cl, v_cl = self._closed_speed
+        return float(np.interp(s_m % self.track.length_m, s_cl, v_cl))
+
+    @cached_property
+    def _closed_speed(self) -> tuple[np.ndarray, np.ndarray]:
+        """(s, v) with the first point repeated at the lap length (for interpolation)."""
+        return (
+            np.append(self.track.s_m, self.track.length_m),
+            np.append(self.speed_mps, self.speed_mps[0]),
+        )
+
+    @property
+    def lap_time_s(self) -> float:
+        """Lap time of the plan itself [s] (what a perfect tracker would drive)."""
+        return self.reference.lap_time_s
+
+
+def resample(track: Track, ds_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The centreline every ~`ds_m` [m]: (points (n, 2), left normals (n, 2), w_right, w_left)."""
+    n = max(20, round(track.length_m / ds_m))
+    s = np.arange(n) * track.length_m / n
+    xy = track.point_at(s)
+    d = np.roll(xy, -1, axis=0) - np.roll(xy, 1, axis=0)
+    t = d / np.linalg.norm(d, axis=1, keepdims=True)
+    normals = np.column_stack([-t[:, 1], t[:, 0]])
+    w_r, w_l = track.interp_width(s)
+    return xy, normals, np.asarray(w_r, dtype=float), np.asarray(w_l, dtype=float)
+
+
+def min_curvature_offsets(
+    xy: np.ndarray, normals: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> np.ndarray:
+    """Offsets alpha (n,) [m] along `normals` that minimise the line's curvature energy.
+
+    The line is ``p_i = xy_i + alpha_i * normals_i`` (closed). With ``a = p_i - p_(i-1)``,
+    ``b = p_(i+1) - p_i``, the discrete (Menger) curvature at point i is
+    ``kappa_i = 2 (a x b) / (|a| |b| |a + b|)``; minimise ``sum_i kappa_i^2 (|a| + |b|) / 2``
+    (the integral of kappa^2 along the line) plus ``SMOOTHNESS_WEIGHT * sum_i
+    (alpha_(i+1) - alpha_i)^2``, subject to ``lo <= alpha <= hi``. Exact
+    curvature, so cutting a corner on the inside is not mistaken for straightening it (the
+    bias of second differences of the points); solved with IPOPT from alpha = 0.
+
+    Args:
+        xy: (n, 2) centreline points [m], near-uniform spacing.
+        normals: (n, 2) unit left normals.
+        lo, hi: (n,) bounds [m] (lo < 0 < hi).
+
+    Raises:
+        RacelineError: the solver failed.
+    """
+    n = len(xy)
+    alpha = ca.SX.sym("alpha", n)
+    px = ca.DM(xy[:, 0]) + alpha * ca.DM(normals[:, 0])
+    py = ca.DM(xy[:, 1]) + alpha * ca.DM(normals[:, 1])
+    idx_prev = [(i - 1) % n for i in range(n)]
+    idx_next = [(i + 1) % n for i in range(n)]
+    ax, ay = px - px[idx_prev], py - py[idx_prev]
+    bx, by = px[idx_next] - px, py[idx_next] - py
+    la = ca.sqrt(ax**2 + ay**2)
+    lb = ca.sqrt(bx**2 + by**2)
+    lab = ca.sqrt((ax + bx) ** 2 + (ay + by) ** 2)
+    kappa = 2 * (ax * by - ay * bx) / (la * lb * lab)
+    energy = ca.sum1(kappa**2 * 0.5 * (la + lb))
+    # a little smoothness of the offsets keeps IPOPT well conditioned where the coarse
+    # source polyline has kinks (1e-3 per m^2 of offset change: negligible elsewhere)
+    energy += SMOOTHNESS_WEIGHT * ca.sumsqr(alpha[idx_next] - alpha)
+    solver = ca.nlpsol(
+        "raceline_nlp",
+        "ipopt",
+        {"x": alpha, "f": energy},
+        {
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.sb": "yes",
+            "ipopt.max_iter": 500,
+            "ipopt.tol": 1e-6,
+            "ipopt.acceptable_tol": 1e-4,
+            "ipopt.acceptable_iter": 10,
+        },
+    )
+    sol = solver(x0=np.zeros(n), lbx=lo, ubx=hi)
+    stats = solver.stats()
+    alpha_opt = np.asarray(sol["x"], dtype=float).reshape(-1)
+    status = str(stats.get("return_status", "unknown"))
+    # "steps too small to matter" is IPOPT's way of saying it cannot improve further
+    done = stats.get("success", False) or status in NEAR_OPTIMAL
+    if not done or not np.all(np.isfinite(alpha_opt)):
+        raise RacelineError("raceline", f"no minimum-curvature line (IPOPT: {status})")
+    return np.clip(alpha_opt, lo, hi)
+
+
+def speed_profile(
+    curvature_1pm: np.ndarray, seg_m: np.ndarray, settings: RacelineSettings
+) -> np.ndarray:
+    """Speeds (n,) [m/s] on a closed line: lateral limit, then acceleration and braking.
+
+    Args:
+        curvature_1pm: (n,) curvature at the points [1/m].
+        seg_m: (n,) length of the segment from point i to point i+1 [m].
+        settings: accelerations and the speed cap.
+    """
+    kappa = np.abs(curvature_1pm)
+    v = np.minimum(settings.v_max_mps, np.sqrt(settings.a_lat_mps2 / np.maximum(kappa, 1e-9)))
+    n = len(v)
+    for _ in range(2):  # twice around, so the loop closes
+        for i in range(n):  # forward: accelerate at most a_accel
+            j = (i + 1) % n
+            v[j] = min(v[j], math.sqrt(v[i] ** 2 + 2 * settings.a_accel_mps2 * seg_m[i]))
+        for i in range(n - 1, -1, -1):  # backward: brake at most a_brake
+            j = (i + 1) % n
+            v[i] = min(v[i], math.sqrt(v[j] ** 2 + 2 * settings.a_brake_mps2 * seg_m[i]))
+    return v
+
+
+def default_min_time_loader(
+    track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings
+) -> MinTimeLap:
+    """``services.planner.mintime.store.min_time_lap`` with its default cache (imported
+    here so that this module has no I/O of its own)."""
+    from services.planner.mintime.store import min_time_lap
+
+    return min_time_lap(track, vehicle, settings)
+
+
+def planning_vehicle(
+    vehicle: DynamicVehicleParams, steering_limits_rad: tuple[float, float] | None
+) -> DynamicVehicleParams:
+    """`vehicle` with its steering range cut to `steering_limits_rad` (the planner's
+    bounds): the line is planned with the steering the tracker may command."""
+    if steering_limits_rad is None:
+        return vehicle
+    lo = max(vehicle.steering_min_rad, steering_limits_rad[0])
+    hi = min(vehicle.steering_max_rad, steering_limits_rad[1])
+    if not lo < 0.0 < hi:
+        raise ValueError(f"steering limits {steering_limits_rad} leave no range around 0")
+    if (lo, hi) == (vehicle.steering_min_rad, vehicle.steering_max_rad):
+        return vehicle
+    return DynamicVehicleParams.model_validate(
+        {**vehicle.model_dump(), "steering_min_rad": lo, "steering_max_rad": hi}
+    )
+
+
+def min_time_settings(settings: RacelineSettings) -> MinTimeSettings:
+    """The minimum-time problem of `settings`: top speed, grid, footprint margin."""
+    return MinTimeSettings(
+        v_max_mps=settings.v_max_mps, ds_m=settings.ds_m, margin_m=settings.min_time_margin_m
+    )
+
+
+def build_min_curvature_raceline(
+    track: Track, settings: RacelineSettings, vehicle: DynamicVehicleParams = F1TENTH_GYM
+) -> Raceline:
+    """The minimum-curvature line and its speed profile on `track` (module docstring)."""
+    xy, normals, w_r, w_l = resample(track, settings.ds_m)
+    m = settings.margin_m
+    lo, hi = -(w_r - m), w_l - m
+    # on the inside of a bend no further than INSIDE_RADIUS_SHARE of its radius, so the
+    # moved points never fold over (neighbouring normals cross at the centre of curvature)
+    # (the raw curvature: the kinks of a coarse source polyline are the tightest bends)
+    bend = Track("resampled", xy, w_r, w_l).signed_curvature()
+    with np.errstate(divide="ignore"):
+        radius = np.where(np.abs(bend) > 1e-9, INSIDE_RADIUS_SHARE / np.abs(bend), np.inf)
+    hi = np.where(bend > 0, np.minimum(hi, radius), hi)
+    lo = np.where(bend < 0, np.maximum(lo, -radius), lo)
+    if np.any(lo >= hi):
+        raise RacelineError(
+            track.source, f"raceline margin {m} m leaves no room where the track is narrowest"
+        )
+    try:
+        alpha = min_curvature_offsets(xy, normals, lo, hi)
+    except RacelineError as exc:
+        raise RacelineError(track.source, exc.problem) from None
+    line = xy + alpha[:, None] * normals
+    try:
+        line_track = Track(
+            f"{track.name}-raceline", line, w_r + alpha, w_l - alpha, source=track.source
+        )
+    except TrackError as exc:
+        problem = f"the raceline is not a valid loop ({exc.problem})"
+        raise RacelineError(track.source, problem) from None
+    kappa = line_track.signed_curvature()
+    k = max(1, settings.curvature_smoothing_points)
+    kappa = np.convolve(
+        np.concatenate([kappa[-k:], kappa, kappa[:k]]),
+        np.ones(2 * k + 1) / (2 * k + 1),
+        mode="same",
+    )[k:-k]
+    seg = np.hypot(*(np.roll(line, -1, axis=0) - line).T)
+    v = speed_profile(kappa, seg, settings)
+    reference = ReferenceLap.from_path(line_track, kappa, v, vehicle)
+    return Raceline(line_track, alpha, kappa, v, reference, kind="min_curvature")
+
+
+def build_min_time_raceline(
+    track: Track,
+    settings: RacelineSettings,
+    vehicle: DynamicVehicleParams = F1TENTH_GYM,
+    steering_limits_rad: tuple[float, float] | None = None,
+    loader: MinTimeLoader | None = None,
+) -> Raceline:
+    """The minimum-time lap of `vehicle` on `track` as a raceline (module docstring).
+
+    Raises:
+        RacelineError: no minimum-time lap exists (or the line is not a valid loop).
+    """
+    car = planning_vehicle(vehicle, steering_limits_rad)
+    try:
+        lap = (loader or default_min_time_loader)(track, car, min_time_settings(settings))
+    except MinTimeError as exc:
+        raise RacelineError(track.source, f"no minimum-time line: {exc.problem}") from None
+    xy = np.column_stack([lap.x_m, lap.y_m])
+    s_c, e_c = track.project(xy)
+    w_r, w_l = track.interp_width(s_c)
+    try:
+        line_track = Track(f"{track.name}-raceline", xy, w_r - e_c, w_l + e_c, source=track.source)
+    except TrackError as exc:
+        problem = f"the minimum-time line is not a valid loop ({exc.problem})"
+        raise RacelineError(track.source, problem) from None
+    reference = ReferenceLap.from_min_time(lap, line_track)
+    return Raceline(
+        line_track,
+        -np.asarray(e_c, dtype=float),
+        np.asarray(lap.kappa_radpm, dtype=float),
+        np.asarray(lap.v_mps, dtype=float),
+        reference,
+        kind="min_time",
+        min_time=lap,
+    )
+
+
+def build_raceline(
+    track: Track,
+    settings: RacelineSettings,
+    vehicle: DynamicVehicleParams = F1TENTH_GYM,
+    steering_limits_rad: tuple[float, float] | None = None,
+    loader: MinTimeLoader | None = None,
+) -> Raceline:
+    """The raceline ``settings.line`` asks for on `track` for `vehicle` (module docstring).
+
+    Args:
+        track: the track.
+        settings: ``[planner.raceline]``.
+        vehicle: the car the line is planned for.
+        steering_limits_rad: the planner's steering bounds (the minimum-time line is
+            planned within them); None: the car's own.
+        loader: where the minimum-time lap comes from (default: the disk cache, solving
+            on a miss).
+    """
+    if settings.line == "min_curvature":
+        return build_min_curvature_raceline(track, settings, vehicle)
+    return build_min_time_raceline(track, settings, vehicle, steering_limits_rad, loader)
+
+
+def planner_timing(settings: PlannerSettings) -> TrackerTiming:
+    """The tracker's timing in the planner: one planner period, the configured delays."""
+    o = settings.raceline
+    return TrackerTiming(settings.dt_s, o.speed_delay_s, o.steering_delay_s)
+
+
+def tracker_gains(settings: RacelineSettings) -> TrackerGains:
+    """The tracker's feedback gains from ``[planner.raceline]``."""
+    return TrackerGains(
+        k_lateral_radpm=settings.k_lateral_radpm,
+        lookahead_base_m=settings.lookahead_base_m,
+        lookahead_time_s=settings.lookahead_time_s,
+        lookahead_min_m=settings.lookahead_min_m,
+        lookahead_max_m=settings.lookahead_max_m,
+        k_outward_per_s2=settings.k_outward_per_s2,
+    )
+
+
+class RacelinePlanner:
+    """The tracker along a precomputed raceline, with the ``Planner`` interface."""
+
+    method = METHOD
+
+    def __init__(
+        self,
+        track: Track,
+        settings: PlannerSettings,
+        curvature: CurvatureSettings | None = None,
+        *,
+        vehicle: DynamicVehicleParams | None = None,
+        raceline: Raceline | None = None,
+        min_time_loader: MinTimeLoader | None = None,
+        timer: Callable[[], float] = time.perf_counter,
+    ) -> None:
+        """Build the raceline (or reuse one) on `track` for `vehicle` (None: the default
+        car, ``F1TENTH_GYM``)."""
+        self.track = track
+        self.settings = settings
+        self.options = settings.raceline
+        self.vehicle = vehicle or F1TENTH_GYM
+        b = settings.bounds
+        self._delta_lim = (b.delta_rad[0], b.delta_rad[1])
+        self._speed_lim = (b.v_l_mps[0], b.v_l_mps[1])
+        self.raceline = raceline or build_raceline(
+            track, settings.raceline, self.vehicle, self._delta_lim, min_time_loader
+        )
+        self.tracker = Tracker.for_vehicle(
+            self.raceline.reference,
+            planner_timing(settings),
+            tracker_gains(self.options),
+            self.vehicle,
+        )
+        curvature = curvature or CurvatureSettings()
+        self.profile = track_profile(track, curvature)
+        self._timer = timer
+        self.recovery = Recovery(
+            track, settings.recovery, settings.wheelbase_m, min(-b.delta_rad[0], b.delta_rad[1])
+        )
+        self.reset()
+
+    @property
+    def horizon(self) -> int:
+        """N of the reported preview (the planner's horizon)."""
+        return self.settings.horizon_steps
+
+    def reset(self) -> None:
+        """Forget where the car was (next step searches the whole line)."""
+        self._s_line: float | None = None
+        self._s_track: float | None = None
+        self.tracker.reset()
+        self.recovery.reset()
+
+    def prepare(self) -> None:
+        """Nothing to do ahead of time (the ``Planner`` interface)."""
+
+    def step(
+        self,
+        x_m: float,
+        y_m: float,
+        yaw_rad: float,
+        on_command: Callable[[DriveCommand], None] | None = None,
+    ) -> SolveResult:
+        """The tracker's command from the rear-axle pose (x, y [m], yaw [rad])."""
+        t0 = self._timer()
+        line = self.raceline.track
+        if not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad)):
+            cmd = DriveCommand(0.0, 0.0)
+            if on_command is not None:
+                on_command(cmd)
+            return self._result(
+                cmd, x_m, y_m, yaw_rad, 0.0, 0.0, 0.0, "non-finite pose", t0, status=BRAKING
+            )
+        lr = self.vehicle.lr_m
+        cx, cy = x_m + lr * math.cos(yaw_rad), y_m + lr * math.sin(yaw_rad)  # the CoG
+        s_t, e_t = self._project_track(x_m, y_m)
+        self._s_track = s_t
+        was_recovering = self.recovery.active
+        rec = self.recovery.update(x_m, y_m, yaw_rad, s_t, e_t)
+        hint = self._s_line
+        if rec is not None or was_recovering:
+            # follow the rule's anchored progress, on the track and (scaled) on the line
+            s_t = self._s_track = self.recovery.s_m
+            guess = s_t * line.length_m / self.track.length_m
+            hint = float(line.project(np.array([cx, cy]), guess, 2.0)[0])
+        if rec is not None:
+            self._s_line = hint
+            cmd = DriveCommand(rec.speed_mps, rec.steering_rad)
+            if on_command is not None:
+                on_command(cmd)
+            return self._result(
+                cmd,
+                x_m,
+                y_m,
+                yaw_rad,
+                hint,
+                s_t,
+                e_t,
+                f"recovery: {rec.reason}",
+                t0,
+                status=RECOVERING,
+            )
+        tc = self.tracker.command(cx, cy, yaw_rad, hint)
+        self._s_line = tc.s_m
+        speed = min(max(tc.speed_mps, self._speed_lim[0]), self._speed_lim[1])
+        delta = min(max(tc.steering_rad, self._delta_lim[0]), self._delta_lim[1])
+        cmd = DriveCommand(speed, delta)
+        if on_command is not None:
+            on_command(cmd)
+        return self._result(cmd, x_m, y_m, yaw_rad, tc.s_m, s_t, e_t, "tracker", t0)
+
+    def _project_track(self, x: float, y: float) -> tuple[float, float]:
+        if self._s_track is None:
+            s, e = self.track.project(np.array([x, y]))
+            return float(s), float(e)
+        return self.track.project_near(x, y, self._s_track)
+
+    def _result(
+        self,
+        cmd: DriveCommand,
+        x: float,
+        y: float,
+        yaw: float,
+        s_line: float,
+        s_track: float,
+        e_track: float,
+        text: str,
+        t0: float,
+        status: str = SOLVED,
+    ) -> SolveResult:
+        """The record of one tick: the preview is the raceline ahead at the profile speed."""
+        N, dt = self.horizon, self.settings.dt_s
+        line = self.raceline.track
+        states = np.zeros((N + 1, 4))
+        inputs = np.zeros((N, 3))
+        if status == SOLVED:
+            s_k = s_line
+            s_prog = s_track
+            states[0] = (x, y, yaw, s_track)
+            for k in range(1, N + 1):
+                v = self.raceline.speed_at(s_k)
+                s_k += v * dt
+                s_prog += v * dt
+                px, py = line.point_at(s_k)
+                states[k] = (float(px), float(py), float(line.heading_at(s_k)), s_prog)
+                inputs[k - 1] = (v, cmd.steering_rad if k == 1 else 0.0, v)
+        beta = np.full(N, float(self.profile.beta_at(s_track)))
+        return SolveResult(
+            command=cmd,
+            states=states,
+            inputs=inputs,
+            status=status,
+            solver_status=text,
+            iterations=0,
+            solve_time_s=self._timer() - t0,
+            beta=beta,
+            s_m=s_track,
+            e_con_m=e_track,
+            consecutive_failures=0 if status == SOLVED else 1,
+            method=METHOD,
+        )

@@ -1,0 +1,417 @@
+"""Feed-forward + feedback tracking of a planned lap at the grip limit. Pure maths, no I/O.
+
+One tracker for every planned lap the stack drives: the raceline planner's line
+(``services.planner.raceline.planner``) at the planner's 20 Hz, and the replay of the minimum-time
+lap (``services.tools.bench.replay``) at 200 Hz. The plan is a ``ReferenceLap``: periodic tables
+over the arc length ``s`` of the planned CoG path of position, yaw ``psi_p``, path
+curvature ``kappa_p``, speed ``v_p``, the acceleration demand ``a_p`` of the car's speed
+loop, the feed-forward steering ``delta_p`` and the plan's clock ``t_p``.
+
+Timing (``TrackerTiming``). A command computed from the pose at time ``t`` is held for the
+control period ``T``; it reaches the speed loop after ``d_v`` (compute + actuation delay)
+and the road wheels after ``d_d`` (compute + actuation + steering delay + the servo's time
+constant). So the speed command acts over the plan's window ``W_v = [t_p(s) + d_v,
+t_p(s) + d_v + T]`` and the steering over ``W_d = [t_p(s) + d_d, t_p(s) + d_d + T]``;
+``<f>_W`` below is the mean of ``f`` over the plan's positions in ``W`` (``WINDOW_SAMPLE_S``
+apart, at least one: the middle).
+
+The law, with ``(s, e)`` the CoG projected onto the planned path (``e`` right +) and
+``dpsi = wrap(psi - psi_p(s))``::
+
+    l_d     = clip(l_0 + T_l v_p(s), l_min, l_max)               (speed-dependent look-ahead)
+    e_la    = e - l_d sin(dpsi)                  (lateral error of the point l_d ahead)
+    delta   = <delta_p>_W_d + k_e e_la                                       [rad]
+    e_out   = max(0, e tanh(kappa_p(s) / KAPPA_OUTWARD_1PM))    (drift to the outside)
+    a_cmd   = <a_p>_W_v - k_out e_out                                        [m/s^2]
+    v_cmd   = <v_p>_W_v + a_cmd / k,   k = k_accel if a_cmd >= 0 else k_brake   [m/s]
+
+The car's speed loop is proportional, ``a = k (v_cmd - v)`` (``speed_gain_accel_per_s``
+4.755 / ``speed_gain_brake_per_s`` 19.02 1/s), so ``v_cmd`` gives ``a = a_cmd + k (v_p -
+v)``: the planned acceleration fed forward, the speed error fed back at the loop's own
+gain (no speed measurement needed). Full acceleration (9.51 m/s^2) asks for a command 2 m/s
+above the plan. The outward cut matters at the limit: through most corners of a
+minimum-time lap the front axle is at its friction ellipse (and the steering at its end
+stop in the tightest), so more steering buys no lateral force there; only giving up
+longitudinal force does.
+
+Feed-forward steering ``delta_p``: the minimum-time lap's own steering (the optimum of the
+car's single-track model, ``ReferenceLap.from_min_time``), or for a path with a speed
+profile (``ReferenceLap.from_path``, ``steady_state_steering``) the steady-state linear
+single-track model at the planned speed, with the axle loads of the acceleration demand
+(``h`` the CoG height; per unit mass, the moment balance puts ``l_r / L`` of ``a_y`` on the
+front axle)::
+
+    f_zf = (g l_r - a_p h) / L,        f_zr = (g l_f + a_p h) / L
+    alpha_f = a_y l_r / (L mu C_Sf f_zf),   alpha_r = a_y l_f / (L mu C_Sr f_zr)
+    delta_p = atan(L kappa_p) + alpha_f - alpha_r          (kinematic + understeer)
+    beta_p  = atan(l_r kappa_p) - alpha_r,                 psi_p = chi_p - beta_p
+
+with ``a_y = v_p^2 kappa_p``, ``chi_p`` the path's course and ``C_Si`` the cornering
+stiffness per unit load (``F_yi = mu C_Si F_zi alpha_i``, the gym's tyres); for equal loads
+``delta_p = atan(L kappa_p) + K_us a_y``, ``K_us = (1 / C_Sf - 1 / C_Sr) / (mu g)``. The
+acceleration demand is what the speed loop must give for the profile's ``dv/dt = v_p
+dv_p/ds`` against the drag of the steered front tyre (``F_yf sin delta``, ``F_yf = m a_y
+l_r / (L cos delta)``) and of the slip (the body's force balance along the velocity)::
+
+    a_p = (dv/dt) cos(beta_p) - a_y sin(beta_p) + a_y (l_r / L) tan(delta_p)
+
+(about 1.7 m/s^2 at 9 m/s^2 of lateral acceleration: without it the car runs 0.3 m/s slow
+on a limit circle); loads and demand are solved together by fixed-point iteration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from services.planner.mintime.model import DELTA
+from services.planner.mintime.ocp import MinTimeLap
+from shared.config.vehicle import GRAVITY_MPS2, DynamicVehicleParams
+from shared.track import Track
+
+#: Path curvature [1/m] above which a bend's outside is fully defined (tanh scale).
+KAPPA_OUTWARD_1PM = 0.1
+#: Spacing of the samples of a hold window [s].
+WINDOW_SAMPLE_S = 0.01
+#: Fixed-point iterations of the steady-state steering (loads <-> acceleration demand).
+STEADY_STATE_ITERATIONS = 4
+
+
+@dataclass(frozen=True, eq=False)
+class ReferenceLap:
+    """A planned closed lap as periodic tables over the arc length of its CoG path.
+
+    Node arrays have shape (n,); node k is at ``s_m[k]`` (``s_m[0] = 0``, increasing, below
+    ``line.length_m``).
+
+    Attributes:
+        line: the planned CoG path as a ``Track`` (for projection; its widths are not used
+            here).
+        s_m: arc length of the nodes along ``line`` [m].
+        yaw_rad: planned car yaw [rad], unwrapped along the lap.
+        kappa_1pm: curvature of the path [1/m] (left +).
+        v_mps: planned speed [m/s].
+        a_mps2: acceleration demand of the speed loop [m/s^2] (acting from node k on).
+        delta_rad: feed-forward steering (road-wheel angle) [rad].
+        t_s: plan time at the nodes [s] (``t_s[0] = 0``).
+        lap_time_s: the plan's lap time [s].
+    """
+
+    line: Track
+    s_m: np.ndarray
+    yaw_rad: np.ndarray
+    kappa_1pm: np.ndarray
+    v_mps: np.ndarray
+    a_mps2: np.ndarray
+    delta_rad: np.ndarray
+    t_s: np.ndarray
+    lap_time_s: float
+
+    def __post_init__(self) -> None:
+        n = len(self.s_m)
+        for name in ("yaw_rad", "kappa_1pm", "v_mps", "a_mps2", "delta_rad", "t_s"):
+            if np.shape(getattr(self, name)) != (n,):
+                raise ValueError(f"{name} must have shape ({n},)")
+        if not (self.lap_time_s > 0.0 and np.all(np.diff(self.t_s) > 0.0)):
+            raise ValueError("the plan's clock must increase")
+
+    @property
+    def length_m(self) -> float:
+        """Length of the planned path [m]."""
+        return self.line.length_m
+
+    @cached_property
+    def _closed(self) -> dict[str, np.ndarray]:
+        """Each table with its first value repeated at ``s = L`` (yaw: one turn on)."""
+        yaw = np.asarray(self.yaw_rad, dtype=float)
+        closing = yaw[-1] + math.remainder(yaw[0] - yaw[-1], math.tau)
+        tables = {
+            "s": np.append(self.s_m, self.length_m),
+            "yaw": np.append(yaw, closing),
+            "t": np.append(self.t_s, self.lap_time_s),
+        }
+        for name, arr in (("kappa", self.kappa_1pm), ("v", self.v_mps), ("delta", self.delta_rad)):
+            tables[name] = np.append(arr, arr[0])
+        return tables
+
+    def at(self, name: str, s_m: float | np.ndarray) -> float | np.ndarray:
+        """Table `name` ("yaw", "kappa", "v", "delta", "t") linearly interpolated at arc
+        length(s) `s_m` [m] (periodic; "yaw" in the unwrapped lap's range, "t" in [0, T))."""
+        c = self._closed
+        out = np.interp(np.mod(s_m, self.length_m), c["s"], c[name])
+        return float(out) if np.ndim(out) == 0 else out
+
+    def accel_at(self, s_m: float | np.ndarray) -> float | np.ndarray:
+        """Acceleration demand [m/s^2] at `s_m` (piecewise constant: node k's from s_k on)."""
+        idx = np.searchsorted(self.s_m, np.mod(s_m, self.length_m), side="right") - 1
+        out = self.a_mps2[np.clip(idx, 0, len(self.s_m) - 1)]
+        return float(out) if np.ndim(out) == 0 else out
+
+    def s_at_time(self, t_s: float | np.ndarray) -> float | np.ndarray:
+        """Arc length [m] the plan reaches at plan time `t_s` [s] (periodic, unwrapped:
+        one lap later is ``L`` further)."""
+        c = self._closed
+        laps = np.floor_divide(t_s, self.lap_time_s)
+        out = np.interp(np.mod(t_s, self.lap_time_s), c["t"], c["s"]) + laps * self.length_m
+        return float(out) if np.ndim(out) == 0 else out
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_min_time(cls, lap: MinTimeLap, line: Track | None = None) -> ReferenceLap:
+        """The minimum-time lap: its CoG path, yaw, speed, acceleration demand (the OCP's
+        input) and steering (the OCP's state), on its own clock.
+
+        Args:
+            lap: the lap (``services.planner.mintime.ocp``).
+            line: the lap's CoG path as a ``Track`` (points ``(lap.x_m, lap.y_m)``), when
+                the caller has one with real widths; None builds one.
+        """
+        xy = np.column_stack([lap.x_m, lap.y_m])
+        if line is None:
+            line = Track("min-time line", xy, np.ones(len(xy)), np.ones(len(xy)))
+        if line.n_points != len(xy) or not np.allclose(line.xy, xy):
+            raise ValueError("line must be the lap's CoG path")
+        return cls(
+            line=line,
+            s_m=np.asarray(line.s_m, dtype=float),
+            yaw_rad=np.asarray(lap.yaw_rad, dtype=float),
+            kappa_1pm=np.asarray(lap.kappa_radpm, dtype=float),
+            v_mps=np.asarray(lap.v_mps, dtype=float),
+            a_mps2=np.asarray(lap.inputs[:, 1], dtype=float),
+            delta_rad=np.asarray(lap.states[:, DELTA], dtype=float),
+            t_s=np.asarray(lap.t_s, dtype=float),
+            lap_time_s=float(lap.lap_time_s),
+        )
+
+    @classmethod
+    def from_path(
+        cls,
+        line: Track,
+        kappa_1pm: np.ndarray,
+        v_mps: np.ndarray,
+        vehicle: DynamicVehicleParams,
+    ) -> ReferenceLap:
+        """A path with a speed profile, steered by the steady-state single-track model
+        (module docstring); ``dv/dt`` from the profile, ``(v_(k+1)^2 - v_k^2) / (2 ds_k)``.
+
+        Args:
+            line: the CoG path (its points are the nodes).
+            kappa_1pm: (n,) path curvature at the nodes [1/m] (left +).
+            v_mps: (n,) planned speed at the nodes [m/s], positive.
+            vehicle: the car (wheelbase, l_r, cornering stiffnesses, mu).
+        """
+        v = np.asarray(v_mps, dtype=float)
+        kappa = np.asarray(kappa_1pm, dtype=float)
+        if np.any(v <= 0.0):
+            raise ValueError("planned speeds must be positive")
+        seg = np.hypot(*(np.roll(line.xy, -1, axis=0) - line.xy).T)
+        v_dot = (np.roll(v, -1) ** 2 - v**2) / (2.0 * seg)
+        dt = 2.0 * seg / (v + np.roll(v, -1))
+        delta, beta, accel = steady_state_steering(kappa, v, v_dot, vehicle)
+        tangent = line.tangent_unit()
+        course = np.unwrap(np.arctan2(tangent[:, 1], tangent[:, 0]))
+        return cls(
+            line=line,
+            s_m=np.asarray(line.s_m, dtype=float),
+            yaw_rad=course - beta,
+            kappa_1pm=kappa,
+            v_mps=v,
+            a_mps2=accel,
+            delta_rad=delta,
+            t_s=np.concatenate([[0.0], np.cumsum(dt)[:-1]]),
+            lap_time_s=float(dt.sum()),
+        )
+
+
+def steady_state_steering(
+    kappa_1pm: np.ndarray,
+    v_mps: np.ndarray,
+    v_dot_mps2: np.ndarray,
+    vehicle: DynamicVehicleParams,
+    iterations: int = STEADY_STATE_ITERATIONS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(delta, beta, a) of the car on a path of curvature `kappa_1pm` at `v_mps`, speeding
+    up at `v_dot_mps2`: the linear single-track model in steady state (module docstring),
+    by fixed-point iteration (the loads depend on ``a``, ``a`` on the drag).
+
+    Returns:
+        steering [rad], slip angle [rad], acceleration demand [m/s^2], each like `v_mps`.
+    """
+    g, h = GRAVITY_MPS2, vehicle.cog_height_m
+    lf, lr, wb = vehicle.lf_m, vehicle.lr_m, vehicle.wheelbase_m
+    c_f = vehicle.mu * vehicle.cornering_stiffness_front_per_rad
+    c_r = vehicle.mu * vehicle.cornering_stiffness_rear_per_rad
+    a_y = v_mps**2 * kappa_1pm
+    accel = np.asarray(v_dot_mps2, dtype=float)
+    for _ in range(iterations):
+        # axle loads per unit mass and the slips that carry a_y (moment balance: l_r / L
+        # of it on the front axle, l_f / L on the rear)
+        fz_f = np.maximum(g * lr - accel * h, 1e-3 * g * lr) / wb
+        fz_r = np.maximum(g * lf + accel * h, 1e-3 * g * lf) / wb
+        alpha_f = a_y * lr / wb / (c_f * fz_f)
+        alpha_r = a_y * lf / wb / (c_r * fz_r)
+        delta = np.arctan(wb * kappa_1pm) + alpha_f - alpha_r
+        beta = np.arctan(lr * kappa_1pm) - alpha_r
+        accel = v_dot_mps2 * np.cos(beta) - a_y * np.sin(beta) + a_y * lr / wb * np.tan(delta)
+    return delta, beta, accel
+
+
+@dataclass(frozen=True)
+class TrackerTiming:
+    """When a command acts (module docstring).
+
+    Attributes:
+        period_s: control period: each command is held this long [s].
+        speed_delay_s: pose -> speed loop (compute + actuation delay) [s].
+        steering_delay_s: pose -> road wheels (compute + actuation + steering delay + the
+            servo's time constant) [s].
+    """
+
+    period_s: float
+    speed_delay_s: float
+    steering_delay_s: float
+
+    def __post_init__(self) -> None:
+        if not self.period_s > 0.0 or min(self.speed_delay_s, self.steering_delay_s) < 0.0:
+            raise ValueError("the period must be positive and the delays non-negative")
+
+    def window(self, delay_s: float) -> np.ndarray:
+        """Sample times [s] after the pose of a hold window starting `delay_s` after it."""
+        n = max(1, round(self.period_s / WINDOW_SAMPLE_S))
+        return delay_s + (np.arange(n) + 0.5) * self.period_s / n
+
+
+@dataclass(frozen=True)
+class TrackerGains:
+    """Feedback of the tracker (module docstring). The defaults are ``[planner.raceline]``'s,
+    tuned at 20 Hz; they also serve the 200 Hz replay.
+
+    Attributes:
+        k_lateral_radpm: ``k_e``, steering per metre of look-ahead lateral error [rad/m].
+        lookahead_base_m: ``l_0`` [m].
+        lookahead_time_s: ``T_l``: the look-ahead grows by this much per m/s [s].
+        lookahead_min_m, lookahead_max_m: bounds of ``l_d`` [m].
+        k_outward_per_s2: ``k_out``, acceleration cut per metre of drift towards the
+            outside of the bend [1/s^2].
+    """
+
+    k_lateral_radpm: float = 0.5
+    lookahead_base_m: float = 0.0
+    lookahead_time_s: float = 0.4
+    lookahead_min_m: float = 0.5
+    lookahead_max_m: float = 4.0
+    k_outward_per_s2: float = 25.0
+
+    def lookahead_m(self, v_mps: float) -> float:
+        """``l_d`` [m] at speed `v_mps` [m/s]."""
+        l_d = self.lookahead_base_m + self.lookahead_time_s * max(v_mps, 0.0)
+        return min(max(l_d, self.lookahead_min_m), self.lookahead_max_m)
+
+
+@dataclass(frozen=True)
+class TrackerCommand:
+    """One command of the tracker and what it was computed from.
+
+    Attributes:
+        speed_mps: speed command [m/s]; steering_rad: steering command [rad] (unclipped).
+        s_m: arc length of the CoG's projection on the planned path [m].
+        e_m: distance from the path [m] (right +); yaw_error_rad: ``psi - psi_p(s)`` [rad].
+        accel_mps2: ``a_cmd``, the acceleration asked of the speed loop [m/s^2].
+        lookahead_m: ``l_d`` [m].
+    """
+
+    speed_mps: float
+    steering_rad: float
+    s_m: float
+    e_m: float
+    yaw_error_rad: float
+    accel_mps2: float
+    lookahead_m: float
+
+
+class Tracker:
+    """Holds the car on a ``ReferenceLap`` (module docstring).
+
+    Args:
+        plan: the lap to follow.
+        timing: control period and delays.
+        gains: feedback gains.
+        speed_gain_accel_per_s, speed_gain_brake_per_s: the car's speed-loop gains ``k``
+            [1/s] (``DynamicVehicleParams``).
+    """
+
+    def __init__(
+        self,
+        plan: ReferenceLap,
+        timing: TrackerTiming,
+        gains: TrackerGains,
+        speed_gain_accel_per_s: float,
+        speed_gain_brake_per_s: float,
+    ) -> None:
+        if not (speed_gain_accel_per_s > 0.0 and speed_gain_brake_per_s > 0.0):
+            raise ValueError("speed-loop gains must be positive")
+        self.plan = plan
+        self.timing = timing
+        self.gains = gains
+        self.k_accel = float(speed_gain_accel_per_s)
+        self.k_brake = float(speed_gain_brake_per_s)
+        self._w_speed = timing.window(timing.speed_delay_s)
+        self._w_steer = timing.window(timing.steering_delay_s)
+        self._s_hint: float | None = None
+
+    @classmethod
+    def for_vehicle(
+        cls,
+        plan: ReferenceLap,
+        timing: TrackerTiming,
+        gains: TrackerGains,
+        vehicle: DynamicVehicleParams,
+    ) -> Tracker:
+        """A tracker with `vehicle`'s speed-loop gains."""
+        return cls(
+            plan, timing, gains, vehicle.speed_gain_accel_per_s, vehicle.speed_gain_brake_per_s
+        )
+
+    def reset(self, s_hint_m: float | None = None) -> None:
+        """Forget where the car was (None: the next call searches the whole path)."""
+        self._s_hint = s_hint_m
+
+    def project(self, x_m: float, y_m: float, s_hint_m: float | None = None) -> tuple[float, float]:
+        """(s, e) [m] of the point on the planned path (e right +), near the hint if any."""
+        hint = self._s_hint if s_hint_m is None else s_hint_m
+        line = self.plan.line
+        if hint is None:
+            s, e = line.project(np.array([x_m, y_m]))
+            return float(s), float(e)
+        return line.project_near(x_m, y_m, hint)
+
+    def command(
+        self, x_m: float, y_m: float, yaw_rad: float, s_hint_m: float | None = None
+    ) -> TrackerCommand:
+        """The command from the CoG pose (x, y [m], yaw [rad]); see the module docstring.
+
+        Args:
+            x_m, y_m, yaw_rad: the car's CoG position and yaw.
+            s_hint_m: arc length on the path near which to project (None: where the last
+                call projected, or the whole path on the first).
+        """
+        p = self.plan
+        g = self.gains
+        s, e = self.project(x_m, y_m, s_hint_m)
+        self._s_hint = s
+        dpsi = math.remainder(yaw_rad - p.at("yaw", s), math.tau)
+        v_p = p.at("v", s)
+        l_d = g.lookahead_m(v_p)
+        e_la = e - l_d * math.sin(dpsi)
+        t0 = p.at("t", s)
+        s_steer = p.s_at_time(t0 + self._w_steer)
+        steering = float(np.mean(p.at("delta", s_steer))) + g.k_lateral_radpm * e_la
+        s_speed = p.s_at_time(t0 + self._w_speed)
+        outward = max(0.0, e * math.tanh(p.at("kappa", s) / KAPPA_OUTWARD_1PM))
+        a_cmd = float(np.mean(p.accel_at(s_speed))) - g.k_outward_per_s2 * outward
+        k = self.k_accel if a_cmd >= 0.0 else self.k_brake
+        speed = float(np.mean(p.at("v", s_speed))) + a_cmd / k
+        return TrackerCommand(speed, steering, s, e, dpsi, a_cmd, l_d)

@@ -1,0 +1,490 @@
+"""``racestack bench``: the paper's lap-time experiment, in process, with table and figures.
+
+    racestack bench --track PATH_OR_NAME --laps 17 --methods cimpcc,mpcc,mpcc-tuned --out DIR
+
+Methods:
+- ``cimpcc``: the paper's CiMPCC weights (``[planner.cimpcc]``);
+- ``mpcc``: the paper's MPCC weights (``[planner.mpcc]``, u_ref = (3.3, 0, 3.0));
+- ``mpcc-tuned``: MPCC with its progress-speed reference swept (v_l ref = 1.1 x v_p ref) over
+  a few laps each; then the full run at the fastest value whose laps were all completed with
+  no off-track event. The chosen value and the sweep are recorded in results.json;
+- ``cimpcc-line``: CiMPCC's cost contouring the car's minimum-time line, its velocity pulls
+  set per stage from the minimum-time speed profile (``[planner.cimpcc_line]``, issue #12);
+- ``cimpcc-tuned``: CiMPCC with ``[planner.cimpcc]`` and ``[curvature]`` of ``--tuned FILE``
+  (``racestack tune``'s best.toml); without it, the configuration's own (said on stderr);
+- ``raceline``: the RDM+OTG-like baseline (``[planner.raceline]``): a minimum-curvature line
+  with a speed profile, tracked by pure pursuit (``services/planner/raceline/planner.py``).
+
+The MPC methods share one built (and compiled) problem: they differ only in parameters.
+
+Reference: unless ``--no-reference``, the bench first computes (or loads from the cache)
+the minimum-time lap of its simulated car on the track (``services.planner.mintime.ocp``, top
+speed the planners' ``[planner.cimpcc] v_up_mps[0]``) and reports every method's mean lap
+over it (``ratio_to_min_time`` in results.json, the last row of the table).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from services.planner import (
+    MinTimeError,
+    MinTimeSettings,
+    Planner,
+    PlannerLike,
+    RacelinePlanner,
+    min_time_lap,
+)
+from services.tools.bench.closed_loop import LoopOptions, run_method
+from services.tools.bench.estimation import ESTIMATORS
+from services.tools.bench.figures import write_figures
+from services.tools.bench.table import format_paper_table, format_table
+from services.tools.tune import TunedCimpcc, load_tuned, tuned_planner
+from shared.config import ConfigError, RacestackConfig, load_config
+from shared.config.planner import MethodWeights
+from shared.evaluation import (
+    MethodRun,
+    ReferenceLine,
+    paper_table_applies,
+    results_document,
+    write_results,
+)
+from shared.outdir import writable_dir_problem
+from shared.track import Track, TrackError, load_track
+
+METHODS = ("cimpcc", "mpcc", "mpcc-tuned", "raceline", "cimpcc-line", "cimpcc-tuned")
+#: Progress-speed references [m/s] tried by mpcc-tuned (v_l ref = 1.1 x v_p ref).
+DEFAULT_SWEEP_MPS = (2.2, 2.4, 2.6, 2.8, 3.0, 3.2, 3.4)
+
+
+class BenchError(ValueError):
+    """A bench argument is wrong (reported before anything runs)."""
+
+
+def parse_methods(text: str) -> list[str]:
+    """Split and check the --methods list."""
+    names = [m.strip() for m in text.split(",") if m.strip()]
+    if not names:
+        raise BenchError("no method given")
+    unknown = [m for m in names if m not in METHODS]
+    if unknown:
+        raise BenchError(
+            f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}"
+        )
+    if len(set(names)) != len(names):
+        raise BenchError("a method is listed twice")
+    return names
+
+
+def check_out_dir(path: Path) -> None:
+    """Create the output folder and prove it is writable."""
+    problem = writable_dir_problem(path)
+    if problem:
+        raise BenchError(problem)
+
+
+class ProgressBar:
+    """Progress of one method on stderr: the laps done and the distance of the lap being
+    driven (the out lap first: the start is just past the line).
+
+    On a terminal one bar is rewritten in place (at most every ``TTY_PERIOD_S``); else
+    (a log file, a pipe) a plain line at each completed lap and every ``LINE_PERIOD_S``
+    of wall time, so a long lap (Monza: 446 m) is not minutes of silence.
+    """
+
+    TTY_PERIOD_S = 0.2
+    LINE_PERIOD_S = 10.0
+
+    def __init__(
+        self, label: str, stream=None, length_m: float = 0.0, total: int = 0
+    ) -> None:
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.length_m = length_m
+        self.t0 = time.perf_counter()
+        self._shown = self.t0
+        self.done = 0
+        self.total = total  #: laps to drive (0: told by the first call)
+        self.s_m = 0.0
+        self.crossings = 0  #: start-line crossings so far (0: still in the out lap)
+        self._s_last: float | None = None
+        self._open = False
+
+    def _text(self) -> str:
+        width = 30
+        filled = int(width * self.done / max(self.total, 1))
+        bar = "#" * filled + "." * (width - filled)
+        where = ""
+        if self.length_m > 0 and self.done < max(self.total, 1):
+            lap = "out lap" if self.crossings == 0 else f"lap {self.done + 1}"
+            where = f", {lap} {self.s_m:.0f}/{self.length_m:.0f} m"
+        return (f"{self.label:<28} [{bar}] {self.done}/{self.total} laps{where} "
+                f"{time.perf_counter() - self.t0:5.1f} s")
+
+    def _write(self, end: bool = False) -> None:
+        if self.tty:
+            self.stream.write("\r\033[K" + self._text() + ("\n" if end else ""))
+            self._open = not end
+        else:
+            self.stream.write(self._text() + "\n")
+        self.stream.flush()
+
+    def __call__(self, done: int, total: int) -> None:
+        """A lap completed: `done` of `total`."""
+        self.done, self.total = done, total
+        self.s_m = 0.0  # the next lap starts at the line
+        self._shown = time.perf_counter()
+        self._write(end=done >= total)
+
+    def at(self, s_m: float) -> None:
+        """The car's progress along the centreline now [m] (called every tick)."""
+        L = self.length_m
+        if self._s_last is not None and L > 0 and s_m < self._s_last - 0.5 * L:
+            self.crossings += 1
+        self._s_last = self.s_m = s_m
+        now = time.perf_counter()
+        if now - self._shown >= (self.TTY_PERIOD_S if self.tty else self.LINE_PERIOD_S):
+            self._shown = now
+            self._write()
+
+    def close(self) -> None:
+        """End the line."""
+        if self.tty and self._open:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._open = False
+
+
+class _Watched:
+    """A planner that tells a ``ProgressBar`` the progress of every step (all else is the
+    planner's own)."""
+
+    def __init__(self, planner: PlannerLike, bar: ProgressBar) -> None:
+        object.__setattr__(self, "_planner", planner)
+        object.__setattr__(self, "_bar", bar)
+
+    def __getattr__(self, name: str):
+        return getattr(self._planner, name)
+
+    def step(self, *args, **kwargs):
+        """The planner's ``step``; its result's progress goes to the bar."""
+        res = self._planner.step(*args, **kwargs)
+        self._bar.at(float(res.s_m))
+        return res
+
+
+def mpcc_weights_for(base: MethodWeights, v_p_ref: float) -> MethodWeights:
+    """MPCC weights with the speed references set to (1.1 v_p_ref, 0, v_p_ref)."""
+    return base.model_copy(update={"u_ref": (round(1.1 * v_p_ref, 4), 0.0, v_p_ref)})
+
+
+def sweep_mpcc(
+    planner: Planner,
+    track,
+    cfg: RacestackConfig,
+    opts: LoopOptions,
+    values: list[float],
+    sweep_laps: int,
+) -> tuple[float | None, list[dict]]:
+    """Try each progress-speed reference for a few laps; the fastest clean one wins."""
+    rows = []
+    for v in values:
+        planner.weights = mpcc_weights_for(cfg.planner.mpcc, v)
+        bar = ProgressBar(f"mpcc-tuned sweep v_p={v:.2f}", length_m=track.length_m,
+                          total=sweep_laps)
+        run = run_method(
+            "sweep",
+            _Watched(planner, bar),
+            track,
+            cfg.simulator,
+            LoopOptions(**{**opts.__dict__, "laps": sweep_laps}),
+            bar,
+        )
+        if run.completed_laps < sweep_laps:
+            bar.close()
+        off = sum(lap.off_track_events for lap in run.laps)
+        clean = run.completed_laps == sweep_laps and off == 0
+        mean = float(np.mean([lap.lap_time_s for lap in run.laps])) if run.laps else None
+        rows.append(
+            {
+                "v_p_ref_mps": v,
+                "v_l_ref_mps": round(1.1 * v, 4),
+                "completed_laps": run.completed_laps,
+                "off_track_events": off,
+                "mean_lap_time_s": mean,
+                "clean": clean,
+            }
+        )
+    clean_rows = [r for r in rows if r["clean"]]
+    if not clean_rows:
+        return None, rows
+    best = min(clean_rows, key=lambda r: r["mean_lap_time_s"])
+    return best["v_p_ref_mps"], rows
+
+
+def min_time_reference(
+    track: Track, cfg: RacestackConfig, lines: list[ReferenceLine] | None = None
+) -> dict | None:
+    """The ``reference`` of results.json: the minimum-time lap of the simulated car on
+    `track` at the planners' top speed (cached per track and car), or None (with a line
+    on stderr) when the track allows none. Its line for the figures is appended to
+    `lines` (when given)."""
+    settings = MinTimeSettings(v_max_mps=cfg.planner.cimpcc.v_up_mps[0])
+    print("minimum-time reference lap (solved once per track and car, then cached) ...",
+          file=sys.stderr)
+    try:
+        lap = min_time_lap(track, cfg.simulator.vehicle, settings)
+    except MinTimeError as exc:
+        print(f"no minimum-time reference: {exc}", file=sys.stderr)
+        return None
+    if lines is not None:
+        s_m, _ = track.project(np.stack([lap.x_m, lap.y_m], axis=1))
+        lines.append(ReferenceLine(lap.lap_time_s, np.asarray(lap.x_m), np.asarray(lap.y_m),
+                                   np.mod(s_m, track.length_m), np.asarray(lap.v_mps)))
+    return {
+        "min_time_lap_s": lap.lap_time_s,
+        "v_max_mps": lap.v_max_mps,
+        "tyre_model": lap.tyre_model,
+        "ds_m": lap.ds_m,
+        "margin_m": lap.margin_m,
+        "solver_status": lap.status,
+        "solve_time_s": lap.solve_time_s,
+        "cache_hit": lap.cache_hit,
+    }
+
+
+def run_bench(
+    cfg: RacestackConfig,
+    track_spec: str,
+    methods: list[str],
+    laps: int,
+    out_dir: Path,
+    opts: LoopOptions,
+    sweep_values: list[float],
+    sweep_laps: int,
+    figures: bool = True,
+    reference: bool = True,
+    tuned: TunedCimpcc | None = None,
+) -> dict:
+    """Run every method and write results.json and the figures; returns the document.
+
+    With `reference`, the minimum-time lap comes first (``min_time_reference``)."""
+    track = load_track(track_spec)
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    ref_doc = None
+    ref_lines: list[ReferenceLine] = []
+    if reference:
+        ref_doc = min_time_reference(track, cfg, ref_lines)
+        timings["min-time reference"] = time.perf_counter() - t_start
+    base = Planner(track, cfg.planner, cfg.curvature)
+    # built first: a track that allows no raceline is an error before anything races
+    baseline = (
+        RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+        if "raceline" in methods
+        else None
+    )
+    runs: list[MethodRun] = []
+    for name in methods:
+        t0 = time.perf_counter()
+        method = "cimpcc" if name == "cimpcc" else "mpcc"
+        planner: PlannerLike
+        extra: dict = {}
+        if baseline is not None and name == "raceline":
+            planner = baseline
+            extra = {"profile_lap_time_s": round(baseline.raceline.lap_time_s, 3)}
+        elif name == "cimpcc-tuned":
+            tuned = tuned or load_tuned(None, cfg)
+            planner, extra = tuned_planner(track, cfg, tuned, base), tuned.extra()
+        elif name == "cimpcc-line":  # its own problem: the path is structural
+            planner = Planner(track, cfg.planner, cfg.curvature, method=name,
+                              vehicle=cfg.simulator.vehicle)
+            extra = {"profile_lap_time_s": round(planner.reference.speed.lap_time_s, 3)}
+        else:
+            planner = Planner(
+                track,
+                cfg.planner,
+                cfg.curvature,
+                method=method,
+                problem=base.problem,
+                solver=base.solver,
+            )
+        if name == "mpcc-tuned":
+            chosen, rows = sweep_mpcc(planner, track, cfg, opts, sweep_values, sweep_laps)
+            timings["mpcc-tuned sweep"] = time.perf_counter() - t0
+            extra = {"sweep": rows, "sweep_laps": sweep_laps, "chosen_v_p_ref_mps": chosen}
+            if chosen is None:
+                print(
+                    "mpcc-tuned: no swept value stayed clean; running the slowest one",
+                    file=sys.stderr,
+                )
+                chosen = min(sweep_values)
+            planner.weights = mpcc_weights_for(cfg.planner.mpcc, chosen)
+            extra["u_ref"] = list(planner.weights.u_ref)
+            t0 = time.perf_counter()
+        bar = ProgressBar(name, length_m=track.length_m, total=laps)
+        run = run_method(
+            name, _Watched(planner, bar), track, cfg.simulator,
+            LoopOptions(**{**opts.__dict__, "laps": laps}), bar
+        )
+        if run.completed_laps < laps:
+            bar.close()
+            print(
+                f"{name}: {run.completed_laps}/{laps} laps ({run.extra.get('aborted', '')})",
+                file=sys.stderr,
+            )
+        run.extra.update(extra)
+        runs.append(run)
+        timings[name] = time.perf_counter() - t0
+    meta = {
+        "laps_requested": laps,
+        "delay_mode": opts.delay_mode,
+        "compute_delay_s": opts.compute_delay_s,
+        "planner_dt_s": cfg.planner.dt_s,
+        "horizon_steps": cfg.planner.horizon_steps,
+        "simulator_vehicle": cfg.simulator.vehicle.model_dump(),
+        "wall_time_s": {k: round(v, 2) for k, v in timings.items()},
+        "wall_time_total_s": round(time.perf_counter() - t_start, 2),
+        "track_source": track.source,
+    }
+    doc = results_document(track.name, track.length_m, runs, meta, reference=ref_doc)
+    write_results(out_dir / "results.json", doc)
+    if figures:
+        write_figures(out_dir, track, base.profile, runs,
+                      reference=ref_lines[0] if ref_lines else None)
+    return doc
+
+
+def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """Arguments of ``racestack bench``."""
+    ap = ap or argparse.ArgumentParser(prog="racestack bench", description=__doc__.splitlines()[0])
+    ap.add_argument("--config", help="TOML configuration file")
+    ap.add_argument(
+        "--track", help="built-in name, folder or centreline file (default: the config's track)"
+    )
+    ap.add_argument("--laps", type=int, default=17, help="timed flying laps per method")
+    ap.add_argument("--methods", default="cimpcc,mpcc", help=f"comma list of {', '.join(METHODS)}")
+    ap.add_argument("--out", default=None, help="output folder (default runs/bench-<time>)")
+    ap.add_argument(
+        "--delay",
+        choices=["fixed", "measured"],
+        default="fixed",
+        help="compute delay before a command acts: fixed (default) or measured",
+    )
+    ap.add_argument(
+        "--compute-delay-ms",
+        type=float,
+        default=2.0,
+        help="with --delay fixed: how long the previous command still acts after each "
+        "planner tick [ms] (0 .. the planner period; default 2)",
+    )
+    ap.add_argument(
+        "--sweep",
+        default=",".join(f"{v:g}" for v in DEFAULT_SWEEP_MPS),
+        help="mpcc-tuned: progress-speed references to try [m/s]",
+    )
+    ap.add_argument("--sweep-laps", type=int, default=3)
+    ap.add_argument("--tuned", help="cimpcc-tuned: a tuned configuration (racestack tune's "
+                    "best.toml); default: the configuration's own [planner.cimpcc]")
+    ap.add_argument(
+        "--no-figures", action="store_true", help="write results.json only, no PNG figures"
+    )
+    ap.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="skip the minimum-time reference lap (solved once per track and car, cached)",
+    )
+    ap.add_argument(
+        "--estimator",
+        choices=list(ESTIMATORS),
+        default="truth",
+        help="the pose the planner sees: truth (default), ekf (the simulator's pose sensor, "
+        "IMU and odometry through the bridge's EKF) or lidar (its lidar through the particle "
+        "filter into the EKF)",
+    )
+    return ap
+
+
+def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) -> int:
+    """Run the bench from the command line; exit code 0 on success, 2 on bad arguments."""
+    args = args or build_parser().parse_args(argv)
+    try:
+        cfg = load_config(args.config)
+        methods = parse_methods(args.methods)
+        if args.laps < 1:
+            raise BenchError("--laps must be at least 1")
+        if args.sweep_laps < 1:
+            raise BenchError("--sweep-laps must be at least 1")
+        if not 0.0 <= args.compute_delay_ms <= 1e3 * cfg.planner.dt_s:
+            raise BenchError(f"--compute-delay-ms must be in [0, {1e3 * cfg.planner.dt_s:g}]")
+        try:
+            sweep = [float(v) for v in args.sweep.split(",") if v.strip()]
+        except ValueError:
+            raise BenchError(f"--sweep must be numbers, got {args.sweep!r}") from None
+        if "mpcc-tuned" in methods and not sweep:
+            raise BenchError("--sweep is empty")
+        track_spec = args.track or cfg.track.source
+        load_track(track_spec)  # a wrong track fails here, before anything runs
+        out = Path(args.out or Path("runs") / time.strftime("bench-%Y%m%d-%H%M%S"))
+        check_out_dir(out)
+        tuned = load_tuned(args.tuned, cfg) if "cimpcc-tuned" in methods else None
+    except (BenchError, ConfigError, TrackError) as exc:
+        print(f"racestack bench: error: {exc}", file=sys.stderr)
+        return 2
+    if tuned is not None:
+        print(tuned.describe(), file=sys.stderr)
+    opts = LoopOptions(
+        laps=args.laps, delay_mode=args.delay, compute_delay_s=args.compute_delay_ms / 1e3,
+        estimator=getattr(args, "estimator", "truth"), localization=cfg.localization,
+    )
+    try:
+        doc = run_bench(
+            cfg,
+            track_spec,
+            methods,
+            args.laps,
+            out,
+            opts,
+            sweep,
+            args.sweep_laps,
+            figures=not args.no_figures,
+            reference=not args.no_reference,
+            tuned=tuned,
+        )
+    except TrackError as exc:  # e.g. no raceline on this track (raised before any race)
+        print(f"racestack bench: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_table(doc))
+    if paper_table_applies(doc["track"]):  # the paper's numbers are of map416 only
+        print()
+        print(format_paper_table())
+    wall = doc["meta"]["wall_time_s"]
+    print("\nwall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in wall.items()))
+    if "mpcc-tuned" in doc["methods"]:
+        m = doc["methods"]["mpcc-tuned"]
+        print(
+            f"mpcc-tuned: chosen v_p ref {m['chosen_v_p_ref_mps']} m/s "
+            f"(u_ref {m['u_ref']}) from a {m['sweep_laps']}-lap sweep"
+        )
+    for name, m in doc["methods"].items():
+        if loc := m.get("localisation"):
+            print(
+                f"localisation {name} ({loc['estimator']}): position RMS "
+                f"{100 * (loc['rms_position_m'] or 0):.2f} cm, max "
+                f"{100 * (loc['max_position_m'] or 0):.2f} cm, yaw RMS "
+                f"{loc['rms_yaw_deg'] or 0:.2f} deg, invalid ticks {loc['invalid_ticks']}"
+            )
+    print(f"results: {out / 'results.json'}" + ("" if args.no_figures else f", figures in {out}"))
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    sys.exit(main())

@@ -1,0 +1,342 @@
+"""``racestack up``: the whole stack racing the simulator, one process per service.
+
+The launcher hosts the Zenoh router (the hub on ``[bus] listen``), starts the simulator,
+localization bridge, planner and telemetry as separate processes, waits until all are alive
+(liveliness tokens), resets the simulator to the start line, races ``--laps`` laps (lap events
+from the simulator), prints the lap table and stops every child. Ctrl-C stops them all too; a
+child that dies is reported and the rest are stopped.
+
+On the terminal (issue #16): the ``rerun --connect ...`` line of ``--serve``; the progress of
+the lap being driven and the planned speed (from ``planner/plan``: one line rewritten in
+place on a TTY, a line every 10 s otherwise); on Ctrl-C the table of the laps finished so
+far, then the stack stops (exit code 130). It cannot start (exit code 2, one line on
+stderr, nothing started, no empty run folder left) when the run folder cannot be written,
+the hub's port is already in use, or the services' ``[bus] connect`` endpoints are not
+where this hub listens: ``up`` is the hub, so a hub nobody can reach is a configuration
+error to fix, not something to wait for.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from services.tools.launcher.supervisor import Supervisor, service_argv
+from shared.bus import Bus, BusOpenError
+from shared.config import RacestackConfig
+from shared.evaluation import LapRecord, MethodRun, Trace, format_table, results_document
+from shared.evaluation.figures import plural
+from shared.keys import EVENTS_LOG, LAP, PLAN, SIM_CONTROL
+from shared.messages import (
+    InputCol,
+    LapEvent,
+    LapKindName,
+    LogEvent,
+    LogLevelName,
+    Plan,
+    SimActionName,
+    SimControl,
+)
+from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
+from shared.service import Service, publishes, subscribes
+from shared.service_shell import HUB_WAIT_S, endpoint_reachable, hub_endpoints
+from shared.track import Track, load_track
+
+log = logging.getLogger(__name__)
+
+#: The services `racestack up` starts, in start order.
+STACK = ("simulator", "localization_bridge", "planner", "telemetry")
+
+
+class Launcher(Service):
+    """The launcher on the bus: it hosts the router (the hub), watches laps, solve times and
+    warnings, and resets the simulator at the start."""
+
+    NAME = "launcher"
+    LISTEN_DEFAULT = True
+    MODE = "router"
+    PORTS = (
+        subscribes(LAP, LapEvent),
+        subscribes(PLAN, Plan),
+        subscribes(EVENTS_LOG, LogEvent),
+        publishes(SIM_CONTROL, SimControl),
+    )
+
+
+@dataclass
+class UpOptions:
+    """What `racestack up` was asked to do."""
+
+    config_path: str | None
+    laps: int = 3
+    services: tuple[str, ...] = STACK
+    run_dir: Path | None = None
+    start_timeout_s: float = 120.0
+    lap_timeout_s: float = 120.0
+    telemetry_args: list[str] = field(default_factory=list)
+
+
+def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) -> int:
+    """Run the stack (see ``_run_up``); in the secure profile (``[bus] security = "mtls"``)
+    first the certificates and the router (``services.tools.launcher.secure``)."""
+    if cfg.bus.security != "mtls":
+        return _run_up(cfg, opts, stop_requested)
+    from services.tools.launcher.secure import run_secure
+
+    if opts.run_dir is None:
+        opts.run_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+    run_dir = opts.run_dir
+    return run_secure(cfg, opts.config_path, run_dir, opts.services,
+                      lambda: _run_up(cfg, opts, stop_requested))
+
+
+def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) -> int:
+    """Run the stack; returns 0 when all laps were raced, 130 when interrupted (the table
+    of the laps finished so far is printed), 2 when it cannot start (an unusable run
+    folder, the hub port taken, a hub the services could not reach: one line on stderr,
+    nothing started, no empty run folder left), else non-zero."""
+    if opts.laps < 1:
+        return _cannot_start(f"--laps must be at least 1, got {opts.laps}")
+    track = load_track(cfg.track.source)
+    run_dir = opts.run_dir or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+    created = missing_dirs(run_dir)
+    problem = writable_dir_problem(run_dir)
+    if problem:
+        remove_empty_dirs(created)
+        return _cannot_start(f"{problem}; give --run-dir a folder you can write")
+    try:
+        bus = Launcher.open_bus(cfg.bus)
+    except BusOpenError as exc:
+        remove_empty_dirs(created)
+        return _cannot_start(str(exc))
+    with bus:
+        unreachable = _unreachable_hub(cfg, opts.services)
+        if unreachable:
+            remove_empty_dirs(created)
+            return _cannot_start(
+                f"the services would connect to {', '.join(unreachable)}, where this hub "
+                f"does not listen ({', '.join(bus.settings.listen)}): fix [bus] connect"
+            )
+        print(
+            f"racestack up: {cfg.planner.method} on {track.name} ({track.length_m:.2f} m), "
+            f"{plural(opts.laps, 'lap')}; logs and telemetry in {run_dir}",
+            flush=True,
+        )
+        return _race(cfg, opts, bus, track, run_dir, stop_requested)
+
+
+def _cannot_start(line: str) -> int:
+    """Say why ``up`` cannot start (one line on stderr); exit code 2."""
+    print(f"racestack up: error: {line}", file=sys.stderr, flush=True)
+    return 2
+
+
+def _unreachable_hub(cfg: RacestackConfig, services: tuple[str, ...]) -> list[str]:
+    """The hub endpoints some service of `services` would connect to where nothing
+    listens (probed for up to ``HUB_WAIT_S``; empty when every service can reach one)."""
+    wanted = {name: hub_endpoints(cfg.bus, name) for name in services}
+    deadline = time.monotonic() + HUB_WAIT_S
+    while True:
+        bad = sorted({e for eps in wanted.values() if eps and not any(
+            endpoint_reachable(x) for x in eps) for e in eps})
+        if not bad or time.monotonic() >= deadline:
+            return bad
+        time.sleep(0.2)
+
+
+def lap_progress_line(lap: int, laps: int, s_m: float, length_m: float, v_mps: float) -> str:
+    """One progress line: ``lap 2/3: 12.3 of 32.8 m (38 %), 3.21 m/s``.
+
+    Args:
+        lap: the lap being driven (1-based); laps: the laps asked for.
+        s_m: progress along the centreline [m] (wrapped into the lap).
+        length_m: the track length [m]; v_mps: the planned speed [m/s].
+    """
+    s = s_m % length_m if length_m > 0 else 0.0
+    pct = 100.0 * s / length_m if length_m > 0 else 0.0
+    return f"lap {lap}/{laps}: {s:.1f} of {length_m:.1f} m ({pct:.0f} %), {v_mps:.2f} m/s"
+
+
+class LiveLine:
+    """Progress on the terminal: one line rewritten in place on a TTY (at most every
+    `tty_period_s`), else a plain line every `period_s` [s] of wall time."""
+
+    def __init__(self, stream=None, period_s: float = 10.0, tty_period_s: float = 0.25):
+        self.stream = stream or sys.stdout
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.period_s = tty_period_s if self.tty else period_s
+        self._last = time.monotonic()
+        self._shown = False
+
+    def show(self, text: str, now: float | None = None) -> None:
+        """Show `text` if it is time to."""
+        now = time.monotonic() if now is None else now
+        if now - self._last < self.period_s:
+            return
+        self._last = now
+        if self.tty:
+            self.stream.write(f"\r\033[K{text}")
+            self._shown = True
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def clear(self) -> None:
+        """End the in-place line before other output."""
+        if self._shown:
+            self.stream.write("\r\033[K")
+            self.stream.flush()
+            self._shown = False
+
+
+def _connect_line(log_path: Path | None, timeout_s: float) -> str | None:
+    """The ``rerun --connect ...`` line telemetry wrote into its log (None if absent)."""
+    deadline = time.monotonic() + timeout_s
+    while log_path is not None:
+        if log_path.exists():
+            for line in log_path.read_text(errors="replace").splitlines():
+                if "rerun --connect" in line:
+                    return "watch live with: rerun --connect " + line.split(
+                        "rerun --connect", 1)[1].strip()
+        if time.monotonic() >= deadline:
+            return None
+        time.sleep(0.1)
+    return None
+
+
+def _race(
+    cfg: RacestackConfig,
+    opts: UpOptions,
+    bus: Bus,
+    track: Track,
+    run_dir: Path,
+    stop_requested: Callable[[], bool],
+) -> int:
+    """Start the children, race the laps, print the table, stop everything."""
+    laps: list[LapRecord] = []
+    interrupted = False
+    with Supervisor(log_dir=run_dir / "logs") as sup:
+        node = Launcher(bus)
+        lap_events = node.subscribe(LAP, queue_size=1000)
+        solve_ms: list[float] = []  # appended on the Zenoh thread (list.append is atomic)
+        latest: dict[str, float] = {}  # the newest plan's progress and speed (Zenoh thread)
+
+        def on_plan(p: Plan) -> None:
+            solve_ms.append(p.solve_time_ms)
+            latest["s_m"] = p.s_m
+            latest["v_mps"] = float(p.inputs[0, InputCol.V_L]) if len(p.inputs) else 0.0
+
+        node.subscribe(PLAN, on_plan)
+        logs = node.subscribe(EVENTS_LOG, queue_size=1000)
+        control = node.publisher(SIM_CONTROL)
+        node.announce()
+        children = {}
+        for name in opts.services:
+            extra = list(opts.telemetry_args) if name == "telemetry" else []
+            if name == "telemetry":
+                extra += ["--out", str(run_dir)]
+            children[name] = sup.start(name, service_argv(name, opts.config_path, extra))
+        print(f"waiting for {', '.join(opts.services)} ...", flush=True)
+        ok = sup.wait_until(
+            lambda: not bus.missing_alive(opts.services) or stop_requested(), opts.start_timeout_s
+        )
+        if stop_requested():
+            print("interrupted", flush=True)
+            return 130
+        if not ok:
+            return _report_failure(sup, bus, opts, "start")
+        if "--serve" in opts.telemetry_args and "telemetry" in children:
+            line = _connect_line(children["telemetry"].log_path, 5.0)
+            print(line or "live telemetry: no rerun --connect line in "
+                  f"{children['telemetry'].log_path} yet (see that log)", flush=True)
+        print("all services alive: racing", flush=True)
+        control.wait_matching(5.0)
+        control.put(SimControl(stamp_s=time.time(), action=SimActionName.RESET))
+        last_progress = time.monotonic()
+        live = LiveLine()
+        while len(laps) < opts.laps:
+            if stop_requested():
+                live.clear()
+                print("interrupted: the laps finished so far, then stopping the stack",
+                      flush=True)
+                interrupted = True
+                break
+            dead = sup.dead()
+            if dead:
+                live.clear()
+                return _report_failure(sup, bus, opts, "race")
+            for ev in lap_events.drain():
+                last_progress = time.monotonic()
+                if ev.kind == LapKindName.LAP and ev.lap_time_s is not None:
+                    laps.append(
+                        LapRecord(
+                            ev.lap_time_s,
+                            ev.mean_speed_mps or 0.0,
+                            ev.off_track_events,
+                            ev.max_abs_e_con_m or 0.0,
+                        )
+                    )
+                    live.clear()
+                    print(
+                        f"lap {len(laps)}: {ev.lap_time_s:.3f} s, "
+                        f"{ev.mean_speed_mps or 0.0:.2f} m/s, off-track {ev.off_track_events}, "
+                        f"max |e_con| {ev.max_abs_e_con_m or 0.0:.3f} m",
+                        flush=True,
+                    )
+                elif ev.kind == LapKindName.OFF_TRACK:
+                    live.clear()
+                    print(f"off track at lap {ev.lap}", flush=True)
+            for msg in logs.drain():
+                if msg.level in (LogLevelName.WARNING, LogLevelName.ERROR):
+                    live.clear()
+                    print(f"[{msg.source}] {msg.level}: {msg.text}", flush=True)
+            if "s_m" in latest and len(laps) < opts.laps:
+                live.show(lap_progress_line(len(laps) + 1, opts.laps, latest["s_m"],
+                                            track.length_m, latest["v_mps"]))
+            if time.monotonic() - last_progress > opts.lap_timeout_s:
+                live.clear()
+                print(f"no lap event for {opts.lap_timeout_s:.0f} s: giving up", flush=True)
+                break
+            time.sleep(0.05)
+        live.clear()
+        run = MethodRun(cfg.planner.method, laps, Trace(), list(solve_ms), 0, opts.laps,
+                        extra={"aborted": "interrupted"} if interrupted else {})
+        doc = results_document(track.name, track.length_m, [run])
+        if laps or not interrupted:
+            print(format_table(doc), flush=True)
+        else:
+            print("no lap finished", flush=True)
+        print("stopping the stack", flush=True)
+    if "telemetry" in opts.services:
+        print(f"recording: {run_dir}/telemetry.*.rrd (open: rerun {run_dir}/telemetry.*.rrd;"
+              f" figures: racestack report {run_dir})", flush=True)
+    if interrupted:
+        return 130
+    return 0 if len(laps) >= opts.laps else 1
+
+
+def _report_failure(sup: Supervisor, bus: Bus, opts: UpOptions, phase: str) -> int:
+    """Say which child died (or who is missing) and where its log is."""
+    for child in sup.dead():
+        print(
+            f"{child.name} (pid {child.pid}) exited with code {child.exit_code()} "
+            f"during {phase}; log: {child.log_path}",
+            file=sys.stderr,
+            flush=True,
+        )
+        if child.log_path and child.log_path.exists():
+            tail = child.log_path.read_text(errors="replace").splitlines()[-15:]
+            print("\n".join(f"  | {line}" for line in tail), file=sys.stderr, flush=True)
+    missing = bus.missing_alive(opts.services)
+    if missing and not sup.dead():
+        print(
+            f"not alive after {opts.start_timeout_s:.0f} s: {', '.join(sorted(missing))}",
+            file=sys.stderr,
+            flush=True,
+        )
+    print("stopping the rest", file=sys.stderr, flush=True)
+    return 3

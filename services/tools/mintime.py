@@ -1,0 +1,232 @@
+"""``racestack mintime``: the minimum-time lap of the simulator's car, written to a folder.
+
+    racestack mintime --track T [--config F] [--v-max V] [--ds D] [--margin M] --out DIR
+
+Writes ``DIR/mintime.json`` (lap time, settings, solver figures), ``DIR/raceline.csv`` (the
+driven line in the F1TENTH raceline format, readable with
+``shared.track.load_f1tenth_raceline``), ``DIR/mintime_line.png`` (the line on the track
+coloured by speed) and ``DIR/mintime_speed.png`` (speed and acceleration over s). The
+solution is cached per track, car and settings (``services.planner.mintime.store``).
+Bad input (unknown track, unwritable folder, bad numbers, no feasible lap) is one line on
+stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.planner.mintime.ocp import CODE_VERSION, MinTimeLap, MinTimeSettings
+from services.planner.mintime.store import min_time_lap
+from shared.config import ConfigError, load_config
+from shared.config.vehicle import DynamicVehicleParams
+from shared.outdir import writable_dir_problem
+from shared.track import RacelineTable, Track, TrackError, load_track, write_f1tenth_raceline
+
+PROG = "racestack mintime"
+
+
+class MinTimeArgumentError(ValueError):
+    """A command-line value is wrong (reported as one line, exit code 2)."""
+
+
+def raceline_table(lap: MinTimeLap) -> RacelineTable:
+    """The lap's driven line as an F1TENTH raceline table (CoG path, course, speed, dv/dt)."""
+    return RacelineTable(
+        lap.s_m, lap.x_m, lap.y_m, lap.psi_rad, lap.kappa_radpm, lap.v_mps, lap.ax_mps2
+    )
+
+
+def mintime_document(lap: MinTimeLap, track: Track, vehicle: DynamicVehicleParams) -> dict:
+    """The ``mintime.json`` document (plain JSON values)."""
+    return {
+        "track": lap.track_name,
+        "track_source": track.source,
+        "track_length_m": lap.track_length_m,
+        "reference_length_m": lap.reference_length_m,
+        "lap_time_s": lap.lap_time_s,
+        "v_max_mps": lap.v_max_mps,
+        "peak_speed_mps": float(lap.v_mps.max()),
+        "mean_speed_mps": lap.track_length_m / lap.lap_time_s,  # centreline / lap, as the bench
+        "tyre_model": lap.tyre_model,
+        "status": lap.status,
+        "success": lap.success,
+        "iterations": lap.iterations,
+        "solve_time_s": lap.solve_time_s,
+        "cache_hit": lap.cache_hit,
+        "ds_m": lap.ds_m,
+        "grid_points": len(lap.s_ref_m),
+        "margin_m": lap.margin_m,
+        "min_clearance_m": lap.min_clearance_m,
+        "max_abs_offset_m": float(np.abs(lap.n_m).max()),
+        "point_mass_lap_time_s": lap.point_mass_lap_time_s,
+        "code_version": CODE_VERSION,
+        "vehicle": vehicle.model_dump(),
+    }
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def fig_line(lap: MinTimeLap, track: Track, path: Path) -> None:
+    """The optimal line on the track, coloured by speed."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 7))
+    for b in (track.left_boundary, track.right_boundary):
+        loop = np.vstack([b, b[:1]])
+        ax.plot(loop[:, 0], loop[:, 1], color="0.2", lw=1.0)
+    centre = np.vstack([track.xy, track.xy[:1]])
+    ax.plot(centre[:, 0], centre[:, 1], color="0.7", lw=0.6, ls="--")
+    pts = ax.scatter(lap.x_m, lap.y_m, c=lap.v_mps, s=6, cmap="turbo")
+    fig.colorbar(pts, ax=ax, label="speed [m/s]")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(
+        f"minimum-time lap on {lap.track_name}: {lap.lap_time_s:.3f} s "
+        f"(v_max {lap.v_max_mps:g} m/s, {lap.tyre_model})"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def fig_speed(lap: MinTimeLap, path: Path) -> None:
+    """Speed and its rate over the driven line's arc length."""
+    plt = _plt()
+    fig, (a, b) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    a.plot(lap.s_m, lap.v_mps, color="C0", label="speed")
+    a.axhline(lap.v_max_mps, color="0.5", ls=":", label=f"v_max {lap.v_max_mps:g} m/s")
+    a.set_ylabel("speed [m/s]")
+    a.legend(loc="lower right")
+    b.plot(lap.s_m, lap.ax_mps2, color="C3", lw=1.0, label="dv/dt")
+    b.plot(lap.s_m, lap.inputs[:, 1], color="C2", lw=0.8, ls="--", label="demand a")
+    b.set_ylabel("[m/s^2]")
+    b.set_xlabel("s along the driven line [m]")
+    b.legend(loc="lower right")
+    fig.suptitle(f"minimum-time lap on {lap.track_name}: {lap.lap_time_s:.3f} s")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_outputs(
+    lap: MinTimeLap,
+    track: Track,
+    vehicle: DynamicVehicleParams,
+    out_dir: Path,
+    figures: bool = True,
+) -> dict[str, Any]:
+    """Write mintime.json, raceline.csv and the figures; returns the JSON document."""
+    doc = mintime_document(lap, track, vehicle)
+    comments = (
+        f"minimum-time lap of the racestack simulator's car on {lap.track_name}: "
+        f"{lap.lap_time_s:.4f} s",
+        f"v_max {lap.v_max_mps:g} m/s, tyres {lap.tyre_model}, ds {lap.ds_m:.4f} m, "
+        f"margin {lap.margin_m:g} m, {CODE_VERSION}",
+    )
+    write_f1tenth_raceline(out_dir / "raceline.csv", raceline_table(lap), comments)
+    files = ["mintime.json", "raceline.csv"]
+    if figures:
+        fig_line(lap, track, out_dir / "mintime_line.png")
+        fig_speed(lap, out_dir / "mintime_speed.png")
+        files += ["mintime_line.png", "mintime_speed.png"]
+    doc["files"] = files
+    tmp = out_dir / "mintime.json.tmp"
+    tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    tmp.replace(out_dir / "mintime.json")
+    return doc
+
+
+def _number(text: str | None, name: str) -> float | None:
+    if text is None:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise MinTimeArgumentError(f"{name} must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise MinTimeArgumentError(f"{name} must be finite, got {text!r}")
+    return value
+
+
+def _check_out_dir(path: Path) -> None:
+    problem = writable_dir_problem(path)
+    if problem:
+        raise MinTimeArgumentError(problem)
+
+
+def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """Arguments of ``racestack mintime`` (numbers are checked by ``main``, one line each)."""
+    ap = ap or argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    ap.add_argument("--config", help="TOML configuration file (its [simulator.vehicle] car)")
+    ap.add_argument("--track", help="built-in name, folder or centreline file (default: config)")
+    ap.add_argument("--v-max", dest="v_max", metavar="V",
+                    help="top speed cap [m/s] (default: [planner.cimpcc] v_up_mps, 4.18)")
+    ap.add_argument("--ds", metavar="D", help="grid spacing along the track [m] (default 0.1)")
+    ap.add_argument("--margin", metavar="M",
+                    help="footprint kept this far inside the boundaries [m] (default 0.02)")
+    ap.add_argument("--out", help="output folder (default runs/mintime-<time>)")
+    ap.add_argument("--no-cache", action="store_true", help="solve even if a cached lap exists")
+    ap.add_argument("--no-figures", action="store_true")
+    return ap
+
+
+def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) -> int:
+    """Solve (or load) the lap and write the outputs; exit code 0, or 2 on bad input."""
+    args = args or build_parser().parse_args(argv)
+    try:
+        cfg = load_config(args.config)
+        v_max = _number(args.v_max, "--v-max")
+        ds = _number(args.ds, "--ds")
+        margin = _number(args.margin, "--margin")
+        defaults = MinTimeSettings()
+        try:
+            settings = MinTimeSettings(
+                v_max_mps=cfg.planner.cimpcc.v_up_mps[0] if v_max is None else v_max,
+                ds_m=defaults.ds_m if ds is None else ds,
+                margin_m=defaults.margin_m if margin is None else margin,
+            )
+        except ValueError as exc:
+            raise MinTimeArgumentError(str(exc).replace("v_max_mps", "--v-max")
+                                       .replace("ds_m", "--ds")
+                                       .replace("margin_m", "--margin")) from None
+        track = load_track(args.track or cfg.track.source)
+        out = Path(args.out or Path("runs") / time.strftime("mintime-%Y%m%d-%H%M%S"))
+        _check_out_dir(out)
+        vehicle = cfg.simulator.vehicle
+        lap = min_time_lap(track, vehicle, settings, use_cache=not args.no_cache)
+    except (MinTimeArgumentError, ConfigError, TrackError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    doc = write_outputs(lap, track, vehicle, out, figures=not args.no_figures)
+    how = "from the cache" if lap.cache_hit else f"solved in {lap.solve_time_s:.1f} s"
+    print(
+        f"minimum-time lap on {lap.track_name} ({lap.track_length_m:.2f} m): "
+        f"{lap.lap_time_s:.3f} s, peak {doc['peak_speed_mps']:.2f} m/s "
+        f"(v_max {lap.v_max_mps:g} m/s, tyres {lap.tyre_model})"
+    )
+    print(
+        f"IPOPT {lap.status}, {lap.iterations} iterations, {how}; ds {lap.ds_m:.4f} m, "
+        f"{doc['grid_points']} points; point mass on the centreline "
+        f"{lap.point_mass_lap_time_s:.3f} s"
+    )
+    print(f"written: {', '.join(str(out / f) for f in doc['files'])}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

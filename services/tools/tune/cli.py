@@ -1,0 +1,272 @@
+"""``racestack tune``: search a method's parameters for the fastest clean laps.
+
+    racestack tune --method cimpcc --track paperlike --trials 40 --out DIR
+                   [--storage URL] [--study NAME] [--config F] [--laps K] [--seeds 0,1,2]
+                   [--margin M] [--pose-noise X] [--v-max V] [--seed S]
+
+Each trial races the method with one point of its search space (``services.tools.tune.search``)
+over ``--laps`` timed laps for each noise seed (``services.tools.tune.evaluate``); the objective is
+the mean lap time, and a trial that leaves the track, needs the recovery rule, comes closer
+than ``--margin`` to a boundary or misses a lap is infeasible. Optuna's seeded TPE sampler
+proposes the points; the first trial is the configuration's own point (the baseline). The
+study lives in ``--storage`` (default ``sqlite:///DIR/study.db``): run the same command
+again to resume it, or in several processes to share it (give each its own ``--seed``).
+Writes DIR/best.toml, DIR/trials.json, DIR/trials.csv and DIR/history.png (see
+``services.tools.tune.output``). Ctrl-C stops after telling the running trial FAILED and writes
+everything from the trials finished so far.
+
+Exit codes: 0 with a best.toml written, 1 when no trial was feasible, 2 for bad input (one
+line on stderr), 130 when interrupted (outputs written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+import tomllib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from services.tools.tune.evaluate import Evaluator, ObjectiveSettings
+from services.tools.tune.search import (
+    METHODS,
+    PENALTY_S,
+    SearchSpace,
+    UnknownMethodError,
+    fingerprint,
+    space_for,
+)
+from shared.config import ConfigError, load_config
+from shared.outdir import writable_dir_problem
+from shared.track import Track, TrackError, load_track
+
+if TYPE_CHECKING:  # optuna is imported only when a study runs
+    from services.tools.tune.study import GracefulStop
+
+PROG = "racestack tune"
+
+
+class TuneArgumentError(ValueError):
+    """A command-line value is wrong (one line, exit code 2)."""
+
+
+def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """Arguments of ``racestack tune``."""
+    ap = ap or argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    ap.add_argument("--method", required=True, help=f"one of {', '.join(METHODS)}")
+    ap.add_argument("--track", help="built-in name, folder or file (default: the config's)")
+    ap.add_argument("--trials", type=int, default=40,
+                    help="the study's trial budget, all workers together (default 40)")
+    ap.add_argument("--out", required=True, help="output folder (best.toml, trials, figure)")
+    ap.add_argument("--storage", help="Optuna RDB URL (default sqlite:///OUT/study.db)")
+    ap.add_argument("--study", help="study name (default METHOD@TRACK-HASH)")
+    ap.add_argument("--config", help="base TOML configuration (best.toml builds on it)")
+    ap.add_argument("--laps", type=int, default=2, help="timed laps per seed (default 2)")
+    ap.add_argument("--seeds", default="0,1,2", help="noise seeds, comma list (default 0,1,2)")
+    ap.add_argument("--margin", type=float, default=0.05,
+                    help="the car's body stays this far inside the boundaries [m] (0.05)")
+    ap.add_argument("--pose-noise", type=float, default=1.0,
+                    help="pose noise seen by the planner, x the [simulator.pose] deviations")
+    ap.add_argument("--v-max", type=float, default=None,
+                    help="top speed v_l may reach [m/s] (default: the config's v_up v_l, "
+                         "the paper's 4.18)")
+    ap.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
+    return ap
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """The --seeds list."""
+    try:
+        seeds = tuple(int(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise TuneArgumentError(f"--seeds must be integers, got {text!r}") from None
+    return seeds
+
+
+def track_fingerprint(track: Track) -> str:
+    """A hash of the track's geometry (mm)."""
+    arr = np.round(np.column_stack([track.xy, track.w_right_m, track.w_left_m]) * 1e3)
+    return fingerprint(arr.astype(np.int64).tobytes().hex())
+
+
+def track_source(spec: str, track: Track) -> str:
+    """How best.toml names the track: an absolute path, or ``builtin:NAME``."""
+    p = Path(spec).expanduser()
+    return str(p.resolve()) if p.exists() else track.source
+
+
+def check_out_dir(out: Path, name: str, storage: str) -> None:
+    """Create DIR; a DIR that holds the outputs of another study is an error."""
+    problem = writable_dir_problem(out)
+    if problem:
+        raise TuneArgumentError(problem)
+    doc_path = out / "trials.json"
+    if doc_path.exists():
+        try:
+            study = json.loads(doc_path.read_text()).get("study", {})
+        except (OSError, ValueError):
+            return
+        if study.get("study") != name or study.get("storage") != storage:
+            from services.tools.tune.study import StudyMismatchError
+
+            raise StudyMismatchError(
+                f"{out} holds the results of study {study.get('study')!r} "
+                f"({study.get('storage')}), not {name!r}; use another --out"
+            )
+
+
+@contextmanager
+def stop_signals(stop: GracefulStop) -> Iterator[None]:
+    """SIGTERM, and SIGINT unless inherited ignored (a shell's background job), go to
+    `stop` while inside."""
+    sigs = [signal.SIGTERM]
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        sigs.append(signal.SIGINT)
+    try:
+        old = {s: signal.signal(s, stop.handler) for s in sigs}
+    except ValueError:  # not the main thread: no handlers
+        yield
+        return
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _prepare(
+    args: argparse.Namespace,
+) -> tuple[SearchSpace, ObjectiveSettings, dict[str, Any], dict[str, Any], Track]:
+    """Validate everything before anything races: (space, settings, base data, meta, track)."""
+    if args.method not in METHODS:
+        raise UnknownMethodError(
+            f"unknown method {args.method!r}; choose from {', '.join(METHODS)}"
+        )
+    if args.trials < 1:
+        raise TuneArgumentError("--trials must be at least 1")
+    cfg = load_config(args.config)
+    base_data: dict[str, Any] = {}
+    if args.config:
+        base_data = tomllib.loads(Path(args.config).read_text(encoding="utf-8"))
+    v_max = args.v_max if args.v_max is not None else cfg.planner.cimpcc.v_up_mps[0]
+    try:
+        settings = ObjectiveSettings(laps=args.laps, seeds=parse_seeds(args.seeds),
+                                     margin_m=args.margin, pose_noise=args.pose_noise)
+        space = space_for(args.method, v_max, cfg)
+    except UnknownMethodError:
+        raise
+    except ValueError as exc:
+        raise TuneArgumentError(str(exc)) from None
+    spec = args.track or cfg.track.source
+    track = load_track(spec)
+    tfp = track_fingerprint(track)
+    meta = {
+        "method": args.method,
+        "track": track.name,
+        "track_fingerprint": tfp,
+        "track_source": track_source(spec, track),
+        "track_length_m": round(track.length_m, 3),
+        "objective": settings.to_json(),
+        "v_max_mps": v_max,
+        "config": fingerprint(base_data),
+        "config_path": str(Path(args.config).resolve()) if args.config else None,
+        "space": [p.__dict__ for p in space.params],
+    }
+    return space, settings, base_data, meta, track
+
+
+def _line(t: Any, budget: int, names: list[str]) -> str:
+    ua = t.user_attrs
+    pts = " ".join(f"{n}={t.params[n]:.3g}" for n in names if n in t.params)
+    if t.state.name == "FAIL":
+        what = f"FAILED: {ua.get('error', '')}"
+    elif ua.get("feasible"):
+        what = f"{t.value:.3f} s"
+    else:
+        lap = ua.get("mean_lap_s")
+        what = ("infeasible" + (f" ({lap:.3f} s)" if lap else "") + ": "
+                + "; ".join(ua.get("reasons", [])))
+    return f"trial {t.number + 1:>3}/{budget}  {what}  [{pts}]  {ua.get('wall_s', 0):.1f} s"
+
+
+def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) -> int:
+    """Run the tuning; see the module docstring for the exit codes."""
+    args = args or build_parser().parse_args(argv)
+    try:
+        space, settings, base_data, meta, track = _prepare(args)
+    except (TuneArgumentError, UnknownMethodError, ConfigError, TrackError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    from services.tools.tune import study as st
+
+    name = args.study or st.study_name(args.method, track.name, meta["track_fingerprint"])
+    storage = args.storage or st.default_storage(out)
+    meta |= {"study": name, "storage": storage}
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    try:
+        check_out_dir(out, name, storage)
+        study = st.open_study(storage, name, meta, args.seed, exclusive=not args.storage)
+        st.enqueue_baseline(study, space.baseline(load_config(args.config)))
+        evaluator = Evaluator(space, track, base_data, settings)
+    except (TuneArgumentError, st.StudyMismatchError, ConfigError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    done, _ = st.finished_count(study)
+    print(f"{PROG}: study {name!r} in {storage}: {done} of {args.trials} trials done; "
+          f"{args.laps} lap(s) x seeds {list(settings.seeds)}, margin {settings.margin_m:g} m",
+          file=sys.stderr)
+    names = space.names()
+    t0 = time.perf_counter()
+    stop = st.GracefulStop()
+    with stop_signals(stop):
+        rep = st.run_trials(study, space, evaluator, args.trials,
+                            lambda t: print(_line(t, args.trials, names), file=sys.stderr), stop)
+        wall = time.perf_counter() - t0
+        if rep.interrupted:
+            print(f"{PROG}: interrupted; writing what was found", file=sys.stderr)
+        code = _write_outputs(study, out, base_data, meta, names)
+    print(f"{PROG}: {rep.told} trial(s) here in {wall:.0f} s ({rep.failed} failed)",
+          file=sys.stderr)
+    return 130 if rep.interrupted else code
+
+
+def _write_outputs(study: Any, out: Path, base_data: dict, meta: dict, names: list[str]) -> int:
+    """Write DIR's files from the storage; 0 when a best.toml was written, 1 otherwise."""
+    from services.tools.tune import output
+    from services.tools.tune import study as st
+
+    trials = study.get_trials(deepcopy=False)
+    best = st.best_trial(study)
+    doc = output.trials_document(meta, trials, best, names)
+    output.write_history(out, doc, names, trials)
+    output.plot_history(out / output.HISTORY_PNG, trials,
+                        f"racestack tune: {meta['method']} on {meta['track']} ({meta['study']})")
+    if best is None:
+        print(f"{PROG}: no feasible trial yet; no best.toml (see {out / output.TRIALS_CSV})",
+              file=sys.stderr)
+        return 1
+    output.write_best(out, base_data, best, meta)
+    base = [t for t in trials if t.user_attrs.get("baseline") and t.state.name == "COMPLETE"]
+    vs = ""
+    if base and base[0].value is not None and base[0].value < PENALTY_S:
+        vs = f" (baseline {base[0].value:.3f} s, {100 * (best.value / base[0].value - 1):+.1f} %)"
+    print(f"best: trial {best.number}, mean lap {best.value:.3f} s{vs}")
+    for k, v in best.params.items():
+        print(f"  {k} = {v:.4g}")
+    print(f"written: {out / output.BEST}, {out / output.TRIALS_JSON}, "
+          f"{out / output.TRIALS_CSV}, {out / output.HISTORY_PNG}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
