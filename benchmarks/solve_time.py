@@ -30,6 +30,7 @@ from services.planner import Planner
 from services.tools.bench import LoopOptions, ModelPlant, race
 from services.tools.bench.closed_loop import SimulatorPlant
 from shared.config import ConfigError, RacestackConfig, load_config
+from shared.config.methods import CIMPCC, METHODS, planner_methods
 from shared.track import TrackError, load_track
 
 
@@ -106,7 +107,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--track", default="../shared/tracks/map416")
     ap.add_argument("--steps", type=int, default=2000)
-    ap.add_argument("--method", choices=["cimpcc", "mpcc", "cimpcc-line"], default="cimpcc")
+    ap.add_argument(
+        "--method",
+        choices=[n for n in planner_methods() if METHODS[n].kind == "mpc"],
+        default=CIMPCC,
+    )
     ap.add_argument("--backend", choices=["fatrop", "ipopt"], default="fatrop")
     ap.add_argument("--beta-mode", choices=["current", "per_stage"], default="current")
     ap.add_argument("--no-compile", action="store_true")

@@ -2,9 +2,11 @@
 raceline baseline, the minimum-time lap; ``service.py`` is the shell (``python -m
 services.planner``). What tools may use (``docs/architecture.md``, rule 3) is ``__all__``:
 
-- ``make_planner(track, settings, curvature, vehicle)`` -> a ``PlannerLike`` (``Planner``
-  or ``RacelinePlanner``): ``step(x, y, yaw, on_command) -> SolveResult``, ``prepare``,
-  ``reset``, ``settings``, ``recovery``, ``track``, ``profile``, ``horizon``;
+- ``make_planner(track, settings, curvature, vehicle, method=)`` -> a ``PlannerLike``
+  (``Planner`` or ``RacelinePlanner``, by the method's spec in ``shared.config.methods``):
+  ``step(x, y, yaw, on_command) -> SolveResult``, ``prepare``, ``reset``, ``settings``,
+  ``recovery``, ``track``, ``profile``, ``horizon``; ``PlannerPool`` builds many on one
+  track, sharing MPC problems and solvers;
 - the kinematic model the MPC plans with: ``kinematic_bicycle``, ``discretise``,
   ``step_numpy``;
 - the minimum-time lap (``MinTimeLap``, ``MinTimeSettings``, ``MinTimeError``,
@@ -12,7 +14,6 @@ services.planner``). What tools may use (``docs/architecture.md``, rule 3) is ``
 """
 
 from services.planner.interface import PlannerLike
-from services.planner.methods import make_planner
 from services.planner.mintime.model import DELTA
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mintime.store import min_time_lap
@@ -29,6 +30,7 @@ from services.planner.mpc.planner import (
 from services.planner.raceline.planner import RacelinePlanner
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import Recovery
+from services.planner.registry import PlannerPool, make_planner
 
 __all__ = [
     "BRAKING",
@@ -42,6 +44,7 @@ __all__ = [
     "MinTimeSettings",
     "Planner",
     "PlannerLike",
+    "PlannerPool",
     "RacelinePlanner",
     "Recovery",
     "ReferenceLap",

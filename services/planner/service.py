@@ -30,8 +30,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from services.planner.interface import PlannerLike
-from services.planner.methods import make_planner
 from services.planner.mpc.planner import DriveCommand, SolveResult
+from services.planner.registry import make_planner
 from shared.bus import Bus, ChannelSubscription
 from shared.config import RacestackConfig
 from shared.keys import DRIVE_CMD, EVENTS_LOG, PLAN, STATE

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from shared.car import CAR
+from shared.config.methods import CIMPCC
 from shared.keys import (
     DRIVE_CMD,
     EVENTS_LOG,
@@ -135,7 +136,7 @@ def lap_stream(
             beta = np.full(horizon_n, 0.5 + 0.5 * math.cos(min(1.0, abs(kappa)) * math.pi))
             msg = Plan(stamp_s=stamp, horizon=horizon, inputs=inputs, beta=beta,
                        status="solved", solver_status="Solve_Succeeded", iterations=6,
-                       solve_time_ms=4.0 + 2.0 * float(rng.random()), method="cimpcc",
+                       solve_time_ms=4.0 + 2.0 * float(rng.random()), method=CIMPCC,
                        s_m=s % L, e_con_m=0.01 * math.sin(t), source_stamp_s=stamp - 0.003,
                        consecutive_failures=0)
         elif suffix == DRIVE_CMD:

@@ -21,6 +21,7 @@ import sys
 from collections.abc import Callable
 
 from shared.config import ConfigError, load_config
+from shared.config.methods import planner_methods
 from shared.service_shell import OneLineArgumentParser, positive_int
 from shared.track import TrackError
 
@@ -243,7 +244,10 @@ def build_parser() -> argparse.ArgumentParser:
     laps = sub.add_parser("laps", help="planner vs its own kinematic model, lap times")
     laps.add_argument("--config", help="TOML configuration file")
     laps.add_argument("--track", help="built-in name, folder or centreline file")
-    laps.add_argument("--method", choices=["cimpcc", "mpcc", "raceline", "cimpcc-line"])
+    laps.add_argument(
+        "--method", choices=planner_methods(),
+        help="a method of the registry (default: the configuration's [planner] method)",
+    )
     laps.add_argument(
         "--laps", type=positive_int, default=2, help="laps to race (a whole number >= 1)"
     )

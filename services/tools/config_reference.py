@@ -31,6 +31,7 @@ from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 from pydantic_core import PydanticUndefined
 
+from shared.config.base import Choices
 from shared.config.root import RacestackConfig
 
 __all__ = ["UNIT_SUFFIXES", "KeyDoc", "iter_keys", "main", "render_markdown"]
@@ -243,7 +244,10 @@ def range_text(tp: Any, field_meta: list[Any]) -> str:
     tp, meta = _strip_annotated(tp)
     parts = _bounds(field_meta + meta)
     inner, _ = _optional_inner(tp)
-    if get_origin(inner) is Literal:
+    choices = [m for m in field_meta + meta if isinstance(m, Choices)]
+    if choices:
+        parts.append("one of " + ", ".join(_toml(a) for a in choices[0].names()))
+    elif get_origin(inner) is Literal:
         parts.append("one of " + ", ".join(_toml(a) for a in get_args(inner)))
     elif get_origin(inner) in (list, tuple):
         items = []

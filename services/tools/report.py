@@ -27,6 +27,7 @@ import pyarrow.compute as pc
 
 from services.telemetry import SIM_TIME, WALL_TIME, find_segments, read_store
 from shared.config import ConfigError, load_config
+from shared.config.methods import CIMPCC, MPCC
 from shared.curvature import CurvatureProfile, track_profile
 from shared.evaluation import (
     LapRecord,
@@ -45,7 +46,7 @@ _ROW_ID = "rerun.controls.RowId"
 _SCALARS = "Scalars:scalars"
 #: Temporal entities (path prefixes) whose rows (AnyValues fields, text logs) are read.
 ROW_ENTITIES = ("events/", "plan/info")
-_METHOD_NAMES = {"cimpcc": "CiMPCC", "mpcc": "MPCC"}
+_METHOD_NAMES = {CIMPCC: "CiMPCC", MPCC: "MPCC"}
 
 
 @dataclass

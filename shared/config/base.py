@@ -6,6 +6,8 @@ time, and nothing down the line can change a setting after it was validated.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from pydantic import BaseModel, ConfigDict
 
 
@@ -17,3 +19,14 @@ class Section(BaseModel):
 
 class ConfigError(ValueError):
     """A configuration file or value is invalid; the message names the file and the key."""
+
+
+class Choices:
+    """Field metadata naming a string field's allowed values when they come from a registry
+    (validated by the field's own validator; the configuration reference lists them).
+
+    ``Annotated[str, Choices(planner_methods)]``: `names` is called when the values are needed.
+    """
+
+    def __init__(self, names: Callable[[], tuple[str, ...]]) -> None:
+        self.names = names

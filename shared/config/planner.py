@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from shared.car import CAR
-from shared.config.base import Section
+from shared.config.base import Choices, Section
+from shared.config.methods import CIMPCC, method_spec, planner_methods
 
 NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 Speed = Annotated[float, Field(ge=-20.0, le=20.0, allow_inf_nan=False)]
@@ -313,8 +314,10 @@ class PlannerSettings(Section):
             "rk2" (the midpoint rule) or "euler".
     """
 
-    method: Literal["cimpcc", "mpcc", "raceline", "cimpcc-line"] = Field(
-        "cimpcc", description="the planner the service runs ('raceline': the baseline)"
+    method: Annotated[str, Choices(planner_methods)] = Field(
+        CIMPCC,
+        description="the planner the service runs: a method of the registry "
+        "(shared/config/methods.py)",
     )
     cimpcc: MethodWeights = CIMPCC_WEIGHTS
     mpcc: MethodWeights = MPCC_WEIGHTS
@@ -365,11 +368,19 @@ class PlannerSettings(Section):
         "(matters on machines with few cores; 0: no pause)",
     )
 
+    @field_validator("method")
+    @classmethod
+    def _registered(cls, name: str) -> str:
+        method_spec(name, in_planner=True)  # UnknownMethodError (a ValueError) names them
+        return name
+
     def weights(self, method: str | None = None) -> MethodWeights:
-        """The weight set of `method` (default: the configured one)."""
-        name = method or self.method
-        if name == "cimpcc-line":
-            return self.cimpcc_line.weights
-        if name not in ("cimpcc", "mpcc"):
-            raise ValueError(f"unknown method {name!r}")
-        return getattr(self, name)
+        """The weight set of `method` (default: the configured one); ValueError for a
+        method without an MPC cost."""
+        spec = method_spec(method or self.method)
+        if spec.weights is None:
+            raise ValueError(f"method {spec.name!r} has no MPC weights")
+        w = self
+        for part in spec.weights.split("."):
+            w = getattr(w, part)
+        return w

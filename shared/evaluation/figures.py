@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from shared.config.methods import METHODS
 from shared.curvature import CurvatureProfile
 from shared.evaluation.results import MethodRun
 from shared.track import Track
@@ -38,7 +39,7 @@ GAP_SHARE = 0.02
 #: ... and never less than this [m].
 GAP_MIN_M = 0.5
 #: Methods that run no optimisation per tick (their "solve time" is a compute time).
-NO_SOLVER_PREFIXES = ("raceline", "rdm")
+NO_SOLVER_PREFIXES = (*(n for n, s in METHODS.items() if s.kind != "mpc"), "rdm")
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from typing import Annotated, Literal, get_args
 import numpy as np
 from msgspec import Meta
 
+from shared.config.methods import planner_methods
 from shared.messages.codec import (
     MAX_STAMP_S,
     MAX_STR_LEN,
@@ -93,7 +94,8 @@ class InputCol(IntEnum):
 # The allowed strings of the choice fields (msgspec rejects any other value); code names them
 # with the StrEnums of shared.messages.vocab (checked against these at import).
 PlanStatus = Literal["solved", "fallback", "braking", "recovering"]
-PlanMethod = Literal["cimpcc", "mpcc", "raceline", "cimpcc-line"]
+#: The methods a plan may come from: the planner service's (the registry, shared.config.methods).
+PlanMethod = Literal[planner_methods()]  # type: ignore[valid-type]
 LapKind = Literal["start", "lap", "off_track", "back_on_track"]
 LogLevel = Literal["debug", "info", "warning", "error"]
 SimAction = Literal["reset", "pause", "resume"]

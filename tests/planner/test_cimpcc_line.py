@@ -14,7 +14,6 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from services.planner.methods import make_planner
 from services.planner.mpc.model import (
     SPEED,
     S,
@@ -26,7 +25,6 @@ from services.planner.mpc.model import (
     step_numpy,
 )
 from services.planner.mpc.planner import (
-    CIMPCC_LINE,
     SOLVED,
     Planner,
     min_time_reference,
@@ -36,10 +34,12 @@ from services.planner.mpc.problem import NV, NXA, XA_SPEED, ParamLayout, build_p
 from services.planner.mpc.solver import cache_key, solver_options
 from services.planner.raceline.tracker import steady_state_steering
 from services.planner.reference import CENTRELINE, MIN_TIME_LINE, ReferencePath
+from services.planner.registry import make_planner
 from services.planner.service import plan_message
 from services.tools.bench import LoopOptions, run_method
 from services.tools.bench.run import main as bench_main
 from shared.config import load_config
+from shared.config.methods import CIMPCC_LINE
 from shared.config.planner import (
     CIMPCC_WEIGHTS,
     CimpccLineSettings,

@@ -109,8 +109,8 @@ def test_a_margin_wider_than_the_track_is_an_error() -> None:
 def test_the_planner_service_can_run_the_baseline() -> None:
     """``[planner] method = "raceline"`` builds the baseline, and its results make valid
     ``planner/plan`` records (what the service publishes)."""
-    from services.planner.methods import make_planner
     from services.planner.mpc.planner import Planner
+    from services.planner.registry import make_planner
     from services.planner.service import plan_message
 
     tr = load_track("paperlike")

@@ -6,14 +6,16 @@ the car's position, or per predicted stage), solves the problem built once by
 previous plan shifted by one step; ``max_consecutive_failures`` failures in a row give a
 braking command (speed 0). Commands are always finite and inside the input bounds.
 
-Methods: ``cimpcc`` and ``mpcc`` contour the track's centreline (the paper). ``cimpcc-line``
-(issue #12) contours the car's minimum-time line with the same problem builder: its
-velocity pulls (paper eq. 11) take beta = 1 and ``v_up,k`` = the minimum-time profile's
-speed command at each stage's predicted progress; its model is the kinematic bicycle with
-the car's steady-state tyre slip (``model.SlipModel``); and it plans from the pose predicted
-``lead_pose_s`` ahead with the acting command (the actuation and steering delays). The car
-is then projected twice: onto the track (the result's ``s_m`` and ``e_con_m``, the off-track
-cap and the recovery rule, as for every method) and onto the line (the problem's progress).
+Methods (``shared.config.methods``; the planner reads only the resolved ``MethodSetup``):
+the paper's ``cimpcc`` and ``mpcc`` contour the track's centreline. A method whose spec
+follows the minimum-time line (``cimpcc-line``) contours the car's minimum-time line with the
+same problem builder: its velocity pulls (paper eq. 11) take beta = 1 and ``v_up,k`` = the
+minimum-time profile's speed command at each stage's predicted progress; its model may have
+the car's steady-state tyre slip (``model.SlipModel``) and speed loop; and it may plan from
+the pose predicted ``lead_s`` ahead with the acting command (the actuation and steering
+delays). On a line that is not the centreline the car is projected twice: onto the track
+(the result's ``s_m`` and ``e_con_m``, the off-track cap and the recovery rule, as for every
+method) and onto the line (the problem's progress).
 
 Latency: only what needs the new pose runs between the pose and the command (projection,
 aligning the warm start, the solve). ``Planner.prepare()`` does the rest of the next tick's
@@ -39,6 +41,7 @@ from services.planner.mpc.problem import UA, XA, XA_SPEED, OcpProblem, build_pro
 from services.planner.mpc.solver import SolverHandle, make_solver
 from services.planner.recovery import Recovery, RecoveryCommand
 from services.planner.reference import ReferencePath, centreline_path, min_time_path
+from shared.config.methods import MethodSetup, method_setup
 from shared.config.planner import (
     CurvatureSettings,
     MethodWeights,
@@ -66,30 +69,20 @@ STILL_SPEED_MPS = 0.1
 PROJECTION_WINDOW_M = 5.0
 #: Speed [m/s] of the rollout that seeds the very first solve.
 INITIAL_GUESS_SPEED_MPS = 1.0
-#: The method that contours the minimum-time line (issue #12).
-CIMPCC_LINE = "cimpcc-line"
 #: Half-width [m] of the search on the line around the hint from the track's progress.
 LINE_HINT_WINDOW_M = 2.0
 
 
 def problem_settings(settings: PlannerSettings, method: str) -> PlannerSettings:
-    """The settings that fix the structure of `method`'s problem: ``cimpcc-line`` has its
-    own N (``[planner.cimpcc_line] horizon_steps``); the others use `settings`."""
-    if method != CIMPCC_LINE:
-        return settings
-    own = settings.cimpcc_line
-    update: dict = {"horizon_steps": own.horizon_steps}
-    if own.integrator is not None:
-        update["integrator"] = own.integrator
-    return settings.model_copy(update=update)
+    """The settings that fix the structure of `method`'s problem (its own N and integrator
+    when its spec has its own structure; else `settings`)."""
+    return method_setup(settings, method).structure
 
 
 def solver_settings(settings: PlannerSettings, method: str) -> SolverSettings:
-    """The solver settings of `method`: ``cimpcc-line`` has its own tolerances
-    (``[planner.cimpcc_line.solver]``); the others use ``[planner.solver]``."""
-    if method != CIMPCC_LINE:
-        return settings.solver
-    return settings.solver.model_copy(update=settings.cimpcc_line.solver.model_dump())
+    """The solver settings of `method` (its own tolerances laid over ``[planner.solver]``
+    when its spec has its own structure; else ``[planner.solver]``)."""
+    return method_setup(settings, method).solver
 
 
 def min_time_reference(
@@ -135,6 +128,32 @@ def min_time_reference(
         car.lr_m,
         1.0 / car.speed_gain_accel_per_s if accel_lead is None else accel_lead,
         1.0 / car.speed_gain_brake_per_s if brake_lead is None else brake_lead,
+    )
+
+
+def method_reference(
+    track: Track, setup: MethodSetup, vehicle: DynamicVehicleParams | None = None
+) -> ReferencePath:
+    """The path an MPC method contours: the centreline, or the minimum-time line of
+    `vehicle` (``min_time_reference``)."""
+    if setup.spec.reference == "min_time_line":
+        return min_time_reference(track, setup.structure, vehicle)
+    return centreline_path(track)
+
+
+def method_problem(
+    reference: ReferencePath, setup: MethodSetup, vehicle: DynamicVehicleParams | None = None
+) -> OcpProblem:
+    """The MPC problem of a method on `reference`: its model (the paper's kinematic bicycle,
+    or with the tyre slip of `vehicle`, or also its speed loop), structure and layout."""
+    car = vehicle or F1TENTH_GYM
+    slip = speed_loop = None
+    if setup.model != "kinematic":
+        slip = SlipModel.for_vehicle(car, near_limit=setup.has_speed_state)
+    if setup.has_speed_state:
+        speed_loop = SpeedLoop.for_vehicle(car)
+    return build_problem(
+        reference, setup.structure, slip, speed_loop, setup.speed_cap_mps, lifted=setup.lifted
     )
 
 
@@ -226,59 +245,44 @@ class Planner:
             track: the track to race.
             settings: planner settings.
             curvature: curvature-mapping settings (default: the paper's).
-            method: "cimpcc", "mpcc" or "cimpcc-line" (default: settings.method).
+            method: an MPC method of the registry (``shared.config.methods``; default
+                settings.method); its spec decides the line, model, structure, solver
+                settings and pose lead (``MethodSetup``).
             weights: explicit weights (overrides the method's; e.g. a tuned MPCC).
             timer: clock for solve-time measurement [s].
             problem, solver: an already built pair to share between planners on one track
                 (the problem's reference path is then the planner's).
-            reference: the path to contour (default: the centreline, or for
-                ``cimpcc-line`` the minimum-time line of `vehicle`, ``min_time_reference``).
-            vehicle: the car the minimum-time line is solved for and whose tyre slip the
-                model has (``cimpcc-line`` only; default the F1TENTH gym's, the
-                simulator's default car).
+            reference: the path to contour (default: the method's, ``method_reference``).
+            vehicle: the car the minimum-time line is solved for and whose tyre slip and
+                speed loop the model has (default the F1TENTH gym's, the simulator's
+                default car); unused by the paper's kinematic methods.
         """
         self.track = track
         self.settings = settings
-        self.method = method or settings.method
+        setup = method_setup(settings, method)
+        #: what the method is built from (its spec resolved against `settings`)
+        self.setup: MethodSetup = setup
+        self.method = setup.spec.name
         self.weights = weights or settings.weights(self.method)
         curvature = curvature or CurvatureSettings()
         self.profile: CurvatureProfile = track_profile(track, curvature)
+        car = vehicle or F1TENTH_GYM
         if problem is None:
             if reference is None:
-                reference = (
-                    min_time_reference(track, settings, vehicle)
-                    if self.method == CIMPCC_LINE
-                    else centreline_path(track)
-                )
-            slip = speed_loop = None
-            model = settings.cimpcc_line.model
-            with_speed = self.method == CIMPCC_LINE and model == "kinematic_slip_speed"
-            if self.method == CIMPCC_LINE and model != "kinematic":
-                slip = SlipModel.for_vehicle(vehicle or F1TENTH_GYM, near_limit=with_speed)
-            if with_speed:
-                speed_loop = SpeedLoop.for_vehicle(vehicle or F1TENTH_GYM)
-            problem = build_problem(
-                reference,
-                problem_settings(settings, self.method),
-                slip,
-                speed_loop,
-                settings.cimpcc_line.v_max_mps if with_speed else None,
-                lifted=self.method == CIMPCC_LINE and settings.cimpcc_line.lifted,
-            )
+                reference = method_reference(track, setup, car)
+            problem = method_problem(reference, setup, car)
         self.problem = problem
         #: the car's speed loop of a model that holds the car's speed (None: no speed state)
-        self._speed_loop = (
-            SpeedLoop.for_vehicle(vehicle or F1TENTH_GYM) if problem.has_speed else None
-        )
+        self._speed_loop = SpeedLoop.for_vehicle(car) if problem.has_speed else None
         self._model_index = np.array(problem.model_index)
         #: what the problem contours; its progress is the problem's s
         self.reference: ReferencePath = problem.reference
         self.path: Track = self.reference.path
-        if self.method == CIMPCC_LINE and self.reference.speed is None:
-            raise ValueError("cimpcc-line needs a reference path with a speed profile")
-        self.solver = solver or make_solver(self.problem, solver_settings(settings, self.method))
-        lead = settings.cimpcc_line.lead_pose_s if self.method == CIMPCC_LINE else 0.0
-        #: ``cimpcc-line``: the model over the lead time, ``F(x, u)`` (None: no lead)
+        if setup.spec.reference == "min_time_line" and self.reference.speed is None:
+            raise ValueError(f"{self.method} needs a reference path with a speed profile")
+        self.solver = solver or make_solver(self.problem, setup.solver)
+        lead = setup.lead_s
+        #: the model over the pose lead, ``F(x, u)`` (None: no lead)
         self._lead = discretise(problem.dynamics, lead, "rk4") if lead > 0 else None
         self._timer = timer
         b = settings.bounds

@@ -56,12 +56,12 @@ from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettin
 from services.planner.mpc.planner import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import Recovery
+from shared.config.methods import RACELINE
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
 from shared.curvature import track_profile
 from shared.track import Track, TrackError
 
-METHOD = "raceline"
 #: IPOPT statuses accepted besides success: converged as far as its precision allows.
 NEAR_OPTIMAL = frozenset({"Solved_To_Acceptable_Level", "Search_Direction_Becomes_Too_Small"})
 
@@ -193,7 +193,7 @@ def min_curvature_offsets(
     # "steps too small to matter" is IPOPT's way of saying it cannot improve further
     done = stats.get("success", False) or status in NEAR_OPTIMAL
     if not done or not np.all(np.isfinite(alpha_opt)):
-        raise RacelineError("raceline", f"no minimum-curvature line (IPOPT: {status})")
+        raise RacelineError(RACELINE, f"no minimum-curvature line (IPOPT: {status})")
     return np.clip(alpha_opt, lo, hi)
 
 
@@ -380,21 +380,21 @@ def tracker_gains(settings: RacelineSettings) -> TrackerGains:
 class RacelinePlanner:
     """The tracker along a precomputed raceline, with the ``Planner`` interface."""
 
-    method = METHOD
-
     def __init__(
         self,
         track: Track,
         settings: PlannerSettings,
         curvature: CurvatureSettings | None = None,
         *,
+        method: str = RACELINE,
         vehicle: DynamicVehicleParams | None = None,
         raceline: Raceline | None = None,
         min_time_loader: MinTimeLoader | None = None,
         timer: Callable[[], float] = time.perf_counter,
     ) -> None:
         """Build the raceline (or reuse one) on `track` for `vehicle` (None: the default
-        car, ``F1TENTH_GYM``)."""
+        car, ``F1TENTH_GYM``); `method` is the name its results carry."""
+        self.method = method
         self.track = track
         self.settings = settings
         self.options = settings.raceline
@@ -537,5 +537,5 @@ class RacelinePlanner:
             s_m=s_track,
             e_con_m=e_track,
             consecutive_failures=0 if status == SOLVED else 1,
-            method=METHOD,
+            method=self.method,
         )

@@ -2,20 +2,18 @@
 
     racestack bench --track PATH_OR_NAME --laps 17 --methods cimpcc,mpcc,mpcc-tuned --out DIR
 
-Methods:
-- ``cimpcc``: the paper's CiMPCC weights (``[planner.cimpcc]``);
-- ``mpcc``: the paper's MPCC weights (``[planner.mpcc]``, u_ref = (3.3, 0, 3.0));
-- ``mpcc-tuned``: MPCC with its progress-speed reference swept (v_l ref = 1.1 x v_p ref) over
-  a few laps each; then the full run at the fastest value whose laps were all completed with
-  no off-track event. The chosen value and the sweep are recorded in results.json;
-- ``cimpcc-line``: CiMPCC's cost contouring the car's minimum-time line, its velocity pulls
-  set per stage from the minimum-time speed profile (``[planner.cimpcc_line]``, issue #12);
-- ``cimpcc-tuned``: CiMPCC with ``[planner.cimpcc]`` and ``[curvature]`` of ``--tuned FILE``
-  (``racestack tune``'s best.toml); without it, the configuration's own (said on stderr);
-- ``raceline``: the RDM+OTG-like baseline (``[planner.raceline]``): a minimum-curvature line
-  with a speed profile, tracked by pure pursuit (``services/planner/raceline/planner.py``).
+Methods: every method of the registry (``shared.config.methods``), the planner's own and the
+bench's variants of them:
+- a bench variant with ``bench_variant = "sweep"`` (``mpcc-tuned``) races its base method
+  with the progress-speed reference swept (v_l ref = 1.1 x v_p ref) over a few laps each;
+  then the full run at the fastest value whose laps were all completed with no off-track
+  event. The chosen value and the sweep are recorded in results.json;
+- one with ``bench_variant = "tuned_file"`` (``cimpcc-tuned``) races its base method with
+  ``[planner.cimpcc]`` and ``[curvature]`` of ``--tuned FILE`` (``racestack tune``'s
+  best.toml); without it, the configuration's own (said on stderr).
 
-The MPC methods share one built (and compiled) problem: they differ only in parameters.
+The planners come from one ``PlannerPool``: the MPC methods whose problems have the same
+structure share one built (and compiled) problem and solver.
 
 Reference: unless ``--no-reference``, the bench first computes (or loads from the cache)
 the minimum-time lap of its simulated car on the track (``services.planner.mintime.ocp``, top
@@ -38,6 +36,7 @@ from services.planner import (
     MinTimeSettings,
     Planner,
     PlannerLike,
+    PlannerPool,
     RacelinePlanner,
     min_time_lap,
 )
@@ -45,9 +44,11 @@ from services.tools.bench.closed_loop import LoopOptions, run_method
 from services.tools.bench.estimation import ESTIMATORS
 from services.tools.bench.figures import write_figures
 from services.tools.bench.table import format_paper_table, format_table
-from services.tools.tune import TunedCimpcc, load_tuned, tuned_planner
+from services.tools.bench.tuned import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
+from shared.config.methods import METHODS, bench_methods
 from shared.config.planner import MethodWeights
+from shared.curvature import track_profile
 from shared.evaluation import (
     MethodRun,
     ReferenceLine,
@@ -58,8 +59,7 @@ from shared.evaluation import (
 from shared.outdir import writable_dir_problem
 from shared.track import Track, TrackError, load_track
 
-METHODS = ("cimpcc", "mpcc", "mpcc-tuned", "raceline", "cimpcc-line", "cimpcc-tuned")
-#: Progress-speed references [m/s] tried by mpcc-tuned (v_l ref = 1.1 x v_p ref).
+#: Progress-speed references [m/s] a swept variant tries (v_l ref = 1.1 x v_p ref).
 DEFAULT_SWEEP_MPS = (2.2, 2.4, 2.6, 2.8, 3.0, 3.2, 3.4)
 
 
@@ -75,7 +75,7 @@ def parse_methods(text: str) -> list[str]:
     unknown = [m for m in names if m not in METHODS]
     if unknown:
         raise BenchError(
-            f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}"
+            f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(bench_methods())}"
         )
     if len(set(names)) != len(names):
         raise BenchError("a method is listed twice")
@@ -187,17 +187,20 @@ def mpcc_weights_for(base: MethodWeights, v_p_ref: float) -> MethodWeights:
 
 def sweep_mpcc(
     planner: Planner,
+    base: MethodWeights,
     track,
     cfg: RacestackConfig,
     opts: LoopOptions,
     values: list[float],
     sweep_laps: int,
+    label: str = "sweep",
 ) -> tuple[float | None, list[dict]]:
-    """Try each progress-speed reference for a few laps; the fastest clean one wins."""
+    """Try each progress-speed reference over `base` weights for a few laps; the fastest
+    clean one wins."""
     rows = []
     for v in values:
-        planner.weights = mpcc_weights_for(cfg.planner.mpcc, v)
-        bar = ProgressBar(f"mpcc-tuned sweep v_p={v:.2f}", length_m=track.length_m,
+        planner.weights = mpcc_weights_for(base, v)
+        bar = ProgressBar(f"{label} sweep v_p={v:.2f}", length_m=track.length_m,
                           total=sweep_laps)
         run = run_method(
             "sweep",
@@ -227,6 +230,14 @@ def sweep_mpcc(
         return None, rows
     best = min(clean_rows, key=lambda r: r["mean_lap_time_s"])
     return best["v_p_ref_mps"], rows
+
+
+def profile_lap_time_s(planner: PlannerLike) -> float:
+    """The lap time of the plan a planner follows [s]: its line's speed profile (a method
+    on the minimum-time line) or its raceline."""
+    if isinstance(planner, RacelinePlanner):
+        return float(planner.raceline.lap_time_s)
+    return float(planner.reference.speed.lap_time_s)  # type: ignore[attr-defined]
 
 
 def min_time_reference(
@@ -284,49 +295,36 @@ def run_bench(
     if reference:
         ref_doc = min_time_reference(track, cfg, ref_lines)
         timings["min-time reference"] = time.perf_counter() - t_start
-    base = Planner(track, cfg.planner, cfg.curvature)
-    # built first: a track that allows no raceline is an error before anything races
-    baseline = (
-        RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
-        if "raceline" in methods
-        else None
-    )
+    pool = PlannerPool(track, cfg.simulator.vehicle)
+    # built first: a track that allows no line is an error before anything races
+    planners = {name: pool.planner(cfg.planner, name, cfg.curvature) for name in methods}
+    profile = track_profile(track, cfg.curvature)
     runs: list[MethodRun] = []
     for name in methods:
         t0 = time.perf_counter()
-        method = "cimpcc" if name == "cimpcc" else "mpcc"
-        planner: PlannerLike
+        spec = METHODS[name]
+        planner: PlannerLike = planners[name]
         extra: dict = {}
-        if baseline is not None and name == "raceline":
-            planner = baseline
-            extra = {"profile_lap_time_s": round(baseline.raceline.lap_time_s, 3)}
-        elif name == "cimpcc-tuned":
+        if spec.reference != "centreline":
+            extra = {"profile_lap_time_s": round(profile_lap_time_s(planner), 3)}
+        if spec.bench_variant == "tuned_file":
             tuned = tuned or load_tuned(None, cfg)
-            planner, extra = tuned_planner(track, cfg, tuned, base), tuned.extra()
-        elif name == "cimpcc-line":  # its own problem: the path is structural
-            planner = Planner(track, cfg.planner, cfg.curvature, method=name,
-                              vehicle=cfg.simulator.vehicle)
-            extra = {"profile_lap_time_s": round(planner.reference.speed.lap_time_s, 3)}
-        else:
-            planner = Planner(
-                track,
-                cfg.planner,
-                cfg.curvature,
-                method=method,
-                problem=base.problem,
-                solver=base.solver,
+            planner, extra = tuned_planner(pool, cfg, tuned, name), tuned.extra()
+        elif spec.bench_variant == "sweep":
+            assert isinstance(planner, Planner)
+            base_weights = cfg.planner.weights(spec.base)
+            chosen, rows = sweep_mpcc(
+                planner, base_weights, track, cfg, opts, sweep_values, sweep_laps, name
             )
-        if name == "mpcc-tuned":
-            chosen, rows = sweep_mpcc(planner, track, cfg, opts, sweep_values, sweep_laps)
-            timings["mpcc-tuned sweep"] = time.perf_counter() - t0
+            timings[f"{name} sweep"] = time.perf_counter() - t0
             extra = {"sweep": rows, "sweep_laps": sweep_laps, "chosen_v_p_ref_mps": chosen}
             if chosen is None:
                 print(
-                    "mpcc-tuned: no swept value stayed clean; running the slowest one",
+                    f"{name}: no swept value stayed clean; running the slowest one",
                     file=sys.stderr,
                 )
                 chosen = min(sweep_values)
-            planner.weights = mpcc_weights_for(cfg.planner.mpcc, chosen)
+            planner.weights = mpcc_weights_for(base_weights, chosen)
             extra["u_ref"] = list(planner.weights.u_ref)
             t0 = time.perf_counter()
         bar = ProgressBar(name, length_m=track.length_m, total=laps)
@@ -357,7 +355,7 @@ def run_bench(
     doc = results_document(track.name, track.length_m, runs, meta, reference=ref_doc)
     write_results(out_dir / "results.json", doc)
     if figures:
-        write_figures(out_dir, track, base.profile, runs,
+        write_figures(out_dir, track, profile, runs,
                       reference=ref_lines[0] if ref_lines else None)
     return doc
 
@@ -370,7 +368,10 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
         "--track", help="built-in name, folder or centreline file (default: the config's track)"
     )
     ap.add_argument("--laps", type=int, default=17, help="timed flying laps per method")
-    ap.add_argument("--methods", default="cimpcc,mpcc", help=f"comma list of {', '.join(METHODS)}")
+    ap.add_argument(
+        "--methods", default="cimpcc,mpcc",
+        help=f"comma list of {', '.join(bench_methods())} (default cimpcc,mpcc)",
+    )
     ap.add_argument("--out", default=None, help="output folder (default runs/bench-<time>)")
     ap.add_argument(
         "--delay",
@@ -388,7 +389,7 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap.add_argument(
         "--sweep",
         default=",".join(f"{v:g}" for v in DEFAULT_SWEEP_MPS),
-        help="mpcc-tuned: progress-speed references to try [m/s]",
+        help="a swept variant (mpcc-tuned): progress-speed references to try [m/s]",
     )
     ap.add_argument("--sweep-laps", type=int, default=3)
     ap.add_argument("--tuned", help="cimpcc-tuned: a tuned configuration (racestack tune's "
@@ -428,13 +429,17 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
             sweep = [float(v) for v in args.sweep.split(",") if v.strip()]
         except ValueError:
             raise BenchError(f"--sweep must be numbers, got {args.sweep!r}") from None
-        if "mpcc-tuned" in methods and not sweep:
+        if not sweep and any(METHODS[m].bench_variant == "sweep" for m in methods):
             raise BenchError("--sweep is empty")
         track_spec = args.track or cfg.track.source
         load_track(track_spec)  # a wrong track fails here, before anything runs
         out = Path(args.out or Path("runs") / time.strftime("bench-%Y%m%d-%H%M%S"))
         check_out_dir(out)
-        tuned = load_tuned(args.tuned, cfg) if "cimpcc-tuned" in methods else None
+        tuned = (
+            load_tuned(args.tuned, cfg)
+            if any(METHODS[m].bench_variant == "tuned_file" for m in methods)
+            else None
+        )
     except (BenchError, ConfigError, TrackError) as exc:
         print(f"racestack bench: error: {exc}", file=sys.stderr)
         return 2
@@ -467,12 +472,12 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
         print(format_paper_table())
     wall = doc["meta"]["wall_time_s"]
     print("\nwall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in wall.items()))
-    if "mpcc-tuned" in doc["methods"]:
-        m = doc["methods"]["mpcc-tuned"]
-        print(
-            f"mpcc-tuned: chosen v_p ref {m['chosen_v_p_ref_mps']} m/s "
-            f"(u_ref {m['u_ref']}) from a {m['sweep_laps']}-lap sweep"
-        )
+    for name, m in doc["methods"].items():
+        if "chosen_v_p_ref_mps" in m:
+            print(
+                f"{name}: chosen v_p ref {m['chosen_v_p_ref_mps']} m/s "
+                f"(u_ref {m['u_ref']}) from a {m['sweep_laps']}-lap sweep"
+            )
     for name, m in doc["methods"].items():
         if loc := m.get("localisation"):
             print(

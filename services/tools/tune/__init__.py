@@ -1,16 +1,14 @@
 """``racestack tune``: parameter search of a method for the fastest clean laps (Optuna).
 
-What other tools use (``__all__``): the bench's ``cimpcc-tuned`` column (``TunedCimpcc``,
-``load_tuned``, ``tuned_planner``) and the command line (``build_parser``, ``main``, imported
-when called: the search imports the bench's closed loop and Optuna).
+What other tools use (``__all__``): the command line (``build_parser``, ``main``, imported
+when called: the search imports the bench's closed loop and Optuna). The tuner sits above the
+bench: it races trials with the bench's closed loop; the bench's ``cimpcc-tuned`` column
+reads a tuned file itself (``services.tools.bench.tuned``).
 """
 
 from __future__ import annotations
 
 import argparse
-
-from services.tools.tune.bench_column import NAME as TUNED_COLUMN
-from services.tools.tune.bench_column import TunedCimpcc, load_tuned, tuned_planner
 
 
 def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -27,4 +25,4 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
     return _main(argv, args)
 
 
-__all__ = ["TUNED_COLUMN", "TunedCimpcc", "build_parser", "load_tuned", "main", "tuned_planner"]
+__all__ = ["build_parser", "main"]

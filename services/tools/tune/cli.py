@@ -36,12 +36,12 @@ import numpy as np
 
 from services.tools.tune.evaluate import Evaluator, ObjectiveSettings
 from services.tools.tune.search import (
-    METHODS,
     PENALTY_S,
     SearchSpace,
     UnknownMethodError,
     fingerprint,
     space_for,
+    tunable_methods,
 )
 from shared.config import ConfigError, load_config
 from shared.outdir import writable_dir_problem
@@ -60,7 +60,7 @@ class TuneArgumentError(ValueError):
 def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """Arguments of ``racestack tune``."""
     ap = ap or argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
-    ap.add_argument("--method", required=True, help=f"one of {', '.join(METHODS)}")
+    ap.add_argument("--method", required=True, help=f"one of {', '.join(tunable_methods())}")
     ap.add_argument("--track", help="built-in name, folder or file (default: the config's)")
     ap.add_argument("--trials", type=int, default=40,
                     help="the study's trial budget, all workers together (default 40)")
@@ -145,9 +145,9 @@ def _prepare(
     args: argparse.Namespace,
 ) -> tuple[SearchSpace, ObjectiveSettings, dict[str, Any], dict[str, Any], Track]:
     """Validate everything before anything races: (space, settings, base data, meta, track)."""
-    if args.method not in METHODS:
+    if args.method not in tunable_methods():
         raise UnknownMethodError(
-            f"unknown method {args.method!r}; choose from {', '.join(METHODS)}"
+            f"unknown method {args.method!r}; choose from {', '.join(tunable_methods())}"
         )
     if args.trials < 1:
         raise TuneArgumentError("--trials must be at least 1")

@@ -25,9 +25,8 @@ import numpy as np
 
 from services.planner import (
     RECOVERING,
-    Planner,
     PlannerLike,
-    RacelinePlanner,
+    PlannerPool,
     Recovery,
     SolveResult,
 )
@@ -211,7 +210,7 @@ class Evaluator:
         self.base_data = base_data
         self.settings = settings
         self.base_cfg = config_from_dict(base_data, "--config")
-        self._shared: Planner | None = None
+        self._pool = PlannerPool(track, self.base_cfg.simulator.vehicle)
 
     def config_for(self, params: Params) -> tuple[Overlay, RacestackConfig]:
         """The overlay of `params` (method weight tables in full, ``complete_overlay``) and
@@ -221,24 +220,9 @@ class Evaluator:
         return overlay, cfg
 
     def planner_for(self, cfg: RacestackConfig) -> PlannerLike:
-        """A planner of the method with `cfg`'s settings (MPC problems built once)."""
-        if self.space.method == "raceline":
-            return RacelinePlanner(
-                self.track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle
-            )
-        if self.space.method == "cimpcc-line":  # its own problem (N, model) and line
-            settings = cfg.planner.model_copy(update={"method": "cimpcc-line"})
-            return Planner(self.track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
-        if self._shared is None:
-            self._shared = Planner(self.track, self.base_cfg.planner, self.base_cfg.curvature)
-        return Planner(
-            self.track,
-            cfg.planner,
-            cfg.curvature,
-            method=self.space.method,
-            problem=self._shared.problem,
-            solver=self._shared.solver,
-        )
+        """A planner of the method with `cfg`'s settings (MPC problems of the same
+        structure built once, ``PlannerPool``)."""
+        return self._pool.planner(cfg.planner, self.space.method, cfg.curvature)
 
     def run_seed(self, planner: PlannerLike, cfg: RacestackConfig, seed: int
                  ) -> SeedResult:

@@ -27,6 +27,7 @@ from optuna.trial import FrozenTrial
 from services.tools.tune import toml_out
 from services.tools.tune.search import deep_merge, dotted
 from shared.config import RacestackConfig, load_config
+from shared.config.methods import CIMPCC
 
 BEST = "best.toml"
 TRIALS_JSON = "trials.json"
@@ -124,7 +125,7 @@ def best_config_text(
             f"base configuration: {meta.get('config_path') or 'the defaults'}",
             "race it: racestack bench --config THIS"
             + ("  (or --methods cimpcc,cimpcc-tuned --tuned THIS)"
-               if meta["method"] == "cimpcc" else ""),
+               if meta["method"] == CIMPCC else ""),
         ]
     )
     return toml_out.dumps(data, header)

@@ -31,10 +31,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from shared.config import RacestackConfig
+from shared.config.methods import CIMPCC, CIMPCC_LINE, METHODS, MPCC, RACELINE
 from shared.config.planner import CIMPCC_LINE_WEIGHTS
 
-#: The methods ``racestack tune`` knows.
-METHODS = ("cimpcc", "mpcc", "raceline", "cimpcc-line")
 #: v_l = V_RATIO * v_p in every velocity pair (the paper's pairs).
 V_RATIO = 1.1
 #: Value [s] of a trial that drove no complete set of laps (it is infeasible anyway).
@@ -80,7 +79,7 @@ class SearchSpace:
     """The parameters of one method and their mapping to a configuration overlay.
 
     Attributes:
-        method: "cimpcc", "mpcc" or "raceline".
+        method: a method of the registry (``shared.config.methods``) with a search space.
         params: the searched parameters.
         overlay: a point (name -> value) -> the configuration overlay it races.
         from_config: the point a configuration already has (clipped into the bounds): the
@@ -139,7 +138,7 @@ def cimpcc_space(v_max_mps: float) -> SearchSpace:
         r3 = round_sig(p["r3"])
         return {
             "planner": {
-                "cimpcc": {
+                METHODS[CIMPCC].section: {
                     "v_up_mps": v_up,
                     "v_low_mps": v_low,
                     "r3_velocity": [r3, r3],
@@ -161,7 +160,7 @@ def cimpcc_space(v_max_mps: float) -> SearchSpace:
             "gamma": w.gamma,
         }
 
-    return SearchSpace("cimpcc", params, overlay, from_config)
+    return SearchSpace(CIMPCC, params, overlay, from_config)
 
 
 def mpcc_space(v_max_mps: float) -> SearchSpace:
@@ -178,7 +177,7 @@ def mpcc_space(v_max_mps: float) -> SearchSpace:
         r_v = round_sig(p["r2_speed"])
         return {
             "planner": {
-                "mpcc": {
+                METHODS[MPCC].section: {
                     "u_ref": [v_l, 0.0, v_p],
                     "r2_input": [r_v, round_sig(p["r2_delta"]), r_v],
                 }
@@ -189,7 +188,7 @@ def mpcc_space(v_max_mps: float) -> SearchSpace:
         w = cfg.planner.mpcc
         return {"v_p_ref": w.u_ref[2], "r2_speed": w.r2_input[2], "r2_delta": w.r2_input[1]}
 
-    return SearchSpace("mpcc", params, overlay, from_config)
+    return SearchSpace(MPCC, params, overlay, from_config)
 
 
 #: The raceline's tracker gains (either line): steering gain, look-ahead, drift correction.
@@ -227,13 +226,13 @@ def raceline_space(v_max_mps: float, line: str = "min_time") -> SearchSpace:
         if "min_time_margin_m" in table:
             table["min_time_margin_m"] = round(p["min_time_margin_m"], 2)
         table["v_max_mps"] = float(v_max_mps)
-        return {"planner": {"raceline": table}}
+        return {"planner": {METHODS[RACELINE].section: table}}
 
     def from_config(cfg: RacestackConfig) -> dict[str, float]:
         r = cfg.planner.raceline
         return {s.name: float(getattr(r, s.name)) for s in params}
 
-    return SearchSpace("raceline", params, overlay, from_config)
+    return SearchSpace(RACELINE, params, overlay, from_config)
 
 
 def cimpcc_line_space(v_max_mps: float) -> SearchSpace:
@@ -258,7 +257,7 @@ def cimpcc_line_space(v_max_mps: float) -> SearchSpace:
         r3 = round_sig(p["r3"])
         return {
             "planner": {
-                "cimpcc_line": {
+                METHODS[CIMPCC_LINE].section: {
                     "weights": {
                         "q_contour": round_sig(p["q_contour"]),
                         "q_lag": round_sig(p["q_lag"]),
@@ -288,23 +287,34 @@ def cimpcc_line_space(v_max_mps: float) -> SearchSpace:
             "line_margin_m": line.line_margin_m,
         }
 
-    return SearchSpace("cimpcc-line", params, overlay, from_config)
+    return SearchSpace(CIMPCC_LINE, params, overlay, from_config)
+
+
+#: The search space of each method ``racestack tune`` can search (by the registry's names):
+#: ``builder(v_max_mps, cfg) -> SearchSpace``.
+SPACES: dict[str, Callable[[float, RacestackConfig], SearchSpace]] = {
+    CIMPCC: lambda v, cfg: cimpcc_space(v),
+    MPCC: lambda v, cfg: mpcc_space(v),
+    RACELINE: lambda v, cfg: raceline_space(v, cfg.planner.raceline.line),
+    CIMPCC_LINE: lambda v, cfg: cimpcc_line_space(v),
+}
+
+
+def tunable_methods() -> tuple[str, ...]:
+    """The registry's methods that have a search space, in registry order."""
+    return tuple(name for name in METHODS if name in SPACES)
 
 
 def space_for(method: str, v_max_mps: float, cfg: RacestackConfig | None = None) -> SearchSpace:
     """The search space of `method` with top speed `v_max_mps` (the raceline's depends on
     `cfg`'s line kind); UnknownMethodError for a method tune does not know."""
-    if method not in METHODS:
-        raise UnknownMethodError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    if method not in SPACES:
+        raise UnknownMethodError(
+            f"unknown method {method!r}; choose from {', '.join(tunable_methods())}"
+        )
     if not 0.5 <= v_max_mps <= 20.0:
         raise ValueError(f"--v-max must be in [0.5, 20] m/s, got {v_max_mps:g}")
-    if method == "cimpcc":
-        return cimpcc_space(v_max_mps)
-    if method == "mpcc":
-        return mpcc_space(v_max_mps)
-    if method == "cimpcc-line":
-        return cimpcc_line_space(v_max_mps)
-    return raceline_space(v_max_mps, (cfg or RacestackConfig()).planner.raceline.line)
+    return SPACES[method](v_max_mps, cfg or RacestackConfig())
 
 
 # ---------------------------------------------------------------------------- overlays
@@ -325,16 +335,21 @@ def complete_overlay(overlay: Overlay, cfg: RacestackConfig) -> Overlay:
     A partial ``[planner.mpcc]`` table would take the keys it leaves out from
     ``MethodWeights``' class defaults (CiMPCC's, e.g. R3 = diag(40, 40)) instead of MPCC's
     own, so the tuned keys are laid over the base configuration's whole weight set."""
-    planner = overlay.get("planner", {})
     out = deep_merge({}, overlay)
-    for name in ("cimpcc", "mpcc"):
-        if name in planner:
-            full = getattr(cfg.planner, name).model_dump(mode="json")
-            out["planner"][name] = deep_merge(full, planner[name])
-    line = planner.get("cimpcc_line", {})
-    if "weights" in line:
-        full = cfg.planner.cimpcc_line.weights.model_dump(mode="json")
-        out["planner"]["cimpcc_line"]["weights"] = deep_merge(full, line["weights"])
+    for path in {spec.weights for spec in METHODS.values() if spec.weights}:
+        parts = path.split(".")
+        table: Any = out.get("planner", {})
+        for part in parts:
+            table = table.get(part) if isinstance(table, Mapping) else None
+        if table is None:
+            continue
+        full: Any = cfg.planner
+        for part in parts:
+            full = getattr(full, part)
+        parent = out["planner"]
+        for part in parts[:-1]:
+            parent = parent[part]
+        parent[parts[-1]] = deep_merge(full.model_dump(mode="json"), table)
     return out
 
 

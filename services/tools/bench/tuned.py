@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from services.planner import Planner
+from services.planner import PlannerLike, PlannerPool
 from shared.config import RacestackConfig, load_config
+from shared.config.methods import CIMPCC_TUNED
 from shared.config.planner import CurvatureSettings, MethodWeights
-from shared.track import Track
 
-NAME = "cimpcc-tuned"
+NAME = CIMPCC_TUNED
 
 
 @dataclass(frozen=True)
@@ -71,15 +71,9 @@ def load_tuned(path: str | Path | None, cfg: RacestackConfig) -> TunedCimpcc:
     return TunedCimpcc(tuned.planner.cimpcc, tuned.curvature, str(path), tuned.track.source)
 
 
-def tuned_planner(track: Track, cfg: RacestackConfig, tuned: TunedCimpcc, base: Planner
-                  ) -> Planner:
-    """CiMPCC with the tuned weights and curvature, on the bench's problem and solver."""
-    return Planner(
-        track,
-        cfg.planner,
-        tuned.curvature,
-        method="cimpcc",
-        weights=tuned.weights,
-        problem=base.problem,
-        solver=base.solver,
-    )
+def tuned_planner(
+    pool: PlannerPool, cfg: RacestackConfig, tuned: TunedCimpcc, name: str = CIMPCC_TUNED
+) -> PlannerLike:
+    """The column's planner: its base method (CiMPCC) with the tuned weights and curvature,
+    on the pool's shared problem and solver."""
+    return pool.planner(cfg.planner, name, tuned.curvature, weights=tuned.weights)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from services.tools.bench.run import main as bench_main
-from services.tools.tune.bench_column import load_tuned
+from services.tools.bench.tuned import load_tuned
 from shared.config import RacestackConfig
 
 TUNED = """
