@@ -3,7 +3,7 @@
 The contract's publishers and subscriptions (``shared.bus``) carry msgpack records below
 ``racestack/<car>/``; the ROS 2 keys carry CDR anywhere (``odom``, ``0/odom/...``). This
 module uses the open session of the service's ``Bus`` (``bus.session``) for those, without
-importing zenoh itself (only ``shared.bus`` does): a subscriber callback receives the key
+importing zenoh itself (only ``shared.bus.session`` does): a subscriber callback receives the key
 and the payload bytes, a publisher puts bytes with an optional attachment.
 
 Callbacks run on Zenoh's thread: the gateway only enqueues there. An exception in a

@@ -19,7 +19,7 @@ Multi-machine use is configuration only, e.g. a router on the car and a laptop::
 Which process is the hub is the service's built-in role (``listen_default``), which the
 ``[bus.services.<name>]`` table can override together with mode and endpoints.
 ``BusSettings.session_plan(...)`` resolves all of this into a ``SessionPlan`` (pure data,
-no zenoh import); ``shared.bus`` turns the plan into a ``zenoh.Config``.
+no zenoh import); ``shared.bus.session`` turns the plan into a ``zenoh.Config``.
 
 The secure profile (``security = "mtls"``; the default ``"none"`` is the simulator demo's):
 
@@ -227,7 +227,7 @@ class TlsPlan:
 
 @dataclass(frozen=True)
 class SessionPlan:
-    """The resolved session settings of one process (what ``shared.bus`` gives Zenoh).
+    """The resolved session settings of one process (what ``shared.bus.session`` gives Zenoh).
 
     Attributes:
         mode: "peer" | "client" | "router".

@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from shared.bus import DropReporter, FaultCounter
-from shared.fake_bus import FakeBus
+from shared.bus.fake import FakeBus
 from shared.messages import LogEvent, SimTruth, State
 
 

@@ -11,9 +11,9 @@ import pytest
 
 from services.lidar_driver.link import Link
 from services.lidar_driver.service import LidarService
+from shared.bus.fake import FakeBus
 from shared.config import ConfigError, config_from_dict
 from shared.config.lidar import LidarDriverSettings
-from shared.fake_bus import FakeBus
 from shared.hokuyo.fake_io import FakeHokuyo, pty_available
 from shared.messages import LogEvent, Scan
 

@@ -13,8 +13,8 @@ from msgspec.structs import force_setattr
 
 from services.localization_bridge import LidarPoseSource, ScanLayout, scan_problem, service
 from services.localization_bridge.service import BridgeService
+from shared.bus.fake import FakeBus
 from shared.config.localization import LocalizationSettings
-from shared.fake_bus import FakeBus
 from shared.messages import Imu, LogEvent, Odom, Pose, Scan, State
 from shared.track import load_track
 from shared.track.occupancy import FREE, OCCUPIED, OccupancyGrid

@@ -2,7 +2,7 @@
 after the last state, not up to a check period later (issue 15: it was 101-152 ms).
 
 Two tests over 20 trials each, on the real ``PlannerShell`` with a stub planner (no solver)
-on ``shared.fake_bus.FakeBus``:
+on ``shared.bus.fake.FakeBus``:
 
 * deterministic: a fake clock, advanced by the shell's own deadline waits; states arrive at
   random gaps shorter than the limit, then stop. Proves the logic: no brake while states
@@ -27,8 +27,8 @@ import numpy as np
 
 from services.planner.mpc.planner import DriveCommand, SolveResult
 from services.planner.service import BrakeDeadline, PlannerShell
+from shared.bus.fake import FakeBus
 from shared.config.planner import PlannerSettings
-from shared.fake_bus import FakeBus
 from shared.messages import DriveCmd, PlanStatusName, State
 
 TRIALS = 20

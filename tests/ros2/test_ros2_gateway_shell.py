@@ -1,4 +1,4 @@
-"""The gateway's shell on ``shared.fake_bus.FakeBus`` and a fake raw session (no Zenoh)."""
+"""The gateway's shell on ``shared.bus.fake.FakeBus`` and a fake raw session (no Zenoh)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import pytest
 from services.ros2_gateway import Ros2GatewayService
 from services.ros2_gateway.naming import parse_attachment
 from services.ros2_gateway.typestore import make_typestore
+from shared.bus.fake import FakeBus
 from shared.config.ros2 import Ros2Settings
-from shared.fake_bus import FakeBus
 from shared.messages import DriveCmd, Imu, Pose, Scan, State
 
 TS = make_typestore("humble")

@@ -10,9 +10,9 @@ import pytest
 
 from services.localization_bridge.service import BridgeService
 from shared.bus import Bus
+from shared.bus.fake import FakeBus
 from shared.config.bus import BusSettings
 from shared.config.localization import LocalizationSettings
-from shared.fake_bus import FakeBus
 from shared.keys import DRIVE_CMD, EVENTS_LOG, IMU, ODOM, POSE, STATE
 from shared.messages import DriveCmd, LogEvent, Odom, Pose, State
 from shared.net import free_loopback_port

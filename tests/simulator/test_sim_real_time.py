@@ -15,8 +15,8 @@ import pytest
 
 from services.simulator import service
 from services.simulator.service import MAX_LAG_S, SimulatorService
+from shared.bus.fake import FakeBus
 from shared.config import RacestackConfig
-from shared.fake_bus import FakeBus
 from shared.messages import Pose
 from shared.track import OccupancyGrid, load_track
 

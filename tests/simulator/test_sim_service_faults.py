@@ -5,7 +5,7 @@ service: no exception escapes, the fault is counted in ``bus.faults`` and report
 ``events/log``, the car is reset where its state left the contract, and everything it
 publishes decodes (the decoder validates: a record that decodes is within contract).
 
-Most tests use ``shared.fake_bus.FakeBus`` (the real ``TypedPublisher`` over a recording
+Most tests use ``shared.bus.fake.FakeBus`` (the real ``TypedPublisher`` over a recording
 stand-in for ``zenoh.Publisher``); the last one runs the service's real-time loop on
 a real loopback Zenoh session and watches it from a second session.
 """
@@ -27,9 +27,9 @@ from services.simulator import StepResult, centreline_pose, service
 from services.simulator.limits import state_fault, wrap_pi
 from services.simulator.service import STATE_FAULT_KEY, SimulatorService, occupancy_for
 from shared.bus import Bus
+from shared.bus.fake import FakeBus
 from shared.config import RacestackConfig, config_from_dict, load_config
 from shared.config.bus import BusSettings
-from shared.fake_bus import FakeBus
 from shared.messages import DriveCmd, Imu, LogEvent, SimControl, SimTruth
 from shared.net import free_loopback_port
 from shared.track import OccupancyGrid, Track, load_track

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from shared.bus.fake import FakeBus
 from shared.config import RacestackConfig
-from shared.fake_bus import FakeBus
 from shared.keys import EVENTS_LOG
 from shared.messages import LogEvent
 

@@ -1,9 +1,10 @@
 """An in-process stand-in for ``shared.bus.Bus``: a service shell under test without Zenoh.
 
 The publishers are the real ``TypedPublisher`` (sequence numbers, ``try_put`` and the fault
-counting) over a recorder of payloads; the subscriptions are the real ``Subscription`` /
-a queue-backed channel, fed by ``deliver``. What a shell published reads back decoded, so
-validated::
+counting) over a recorder of payloads (a ``RawPublisher``); the subscriptions are the real
+``Subscription`` / a queue-backed channel, fed by ``deliver``. What a shell published reads
+back decoded, so validated. Like the other pure modules of ``shared.bus`` it imports no
+zenoh::
 
     bus = FakeBus()
     svc = BridgeService(bus, LocalizationSettings())
@@ -16,20 +17,26 @@ import queue
 from collections.abc import Callable
 from typing import Any
 
-from shared.bus import DropCounter, FaultCounter, Subscription, TypedPublisher
+from shared.bus.counters import DropCounter, FaultCounter
+from shared.bus.pubsub import Subscription, TypedPublisher
 from shared.keys import Keys
 from shared.messages import Message, decode
 
 
 class RecordingRaw:
-    """Stands in for ``zenoh.Publisher``: keeps every payload."""
+    """Stands in for ``zenoh.Publisher`` (a ``RawPublisher``): keeps every payload."""
 
     def __init__(self) -> None:
         self.sent: list[bytes] = []
+        self.undeclared = False
 
     def put(self, data: bytes) -> None:
         """Keep one payload."""
         self.sent.append(data)
+
+    def undeclare(self) -> None:
+        """Note that the publisher was undeclared (the payloads stay readable)."""
+        self.undeclared = True
 
 
 class FakeChannel:
