@@ -20,22 +20,15 @@ import runpy
 import sys
 from collections.abc import Callable
 
+from shared import roster
 from shared.config import ConfigError, load_config
 from shared.service_shell import OneLineArgumentParser, positive_int
 from shared.track import TrackError
 
 Handler = Callable[[argparse.Namespace], int]
-#: Services startable with ``racestack run NAME`` (each is ``python -m services.NAME``).
-SERVICES = (
-    "router",
-    "simulator",
-    "localization_bridge",
-    "planner",
-    "telemetry",
-    "vesc_driver",
-    "lidar_driver",
-    "ros2_gateway",
-)
+#: Services startable with ``racestack run NAME`` (each is ``python -m services.NAME``): the
+#: roster's processes, in its order.
+SERVICES = roster.names()
 
 
 def _cmd_laps(args: argparse.Namespace) -> int:
