@@ -22,6 +22,7 @@ from collections.abc import Callable
 
 from shared import roster
 from shared.config import ConfigError, load_config
+from shared.extras import missing_extra, require
 from shared.service_shell import OneLineArgumentParser, positive_int
 from shared.track import TrackError
 
@@ -89,18 +90,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if not args.no_figures:
+        require("matplotlib")  # checked before the methods race, not after
     from services.tools.bench import main as bench_main
 
     return bench_main(args=args)
 
 
 def _cmd_mintime(args: argparse.Namespace) -> int:
+    if not args.no_figures:
+        require("matplotlib")
     from services.tools.mintime import main as mintime_main
 
     return mintime_main(args=args)
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
+    require("optuna", "matplotlib")
     from services.tools.tune import main as tune_main
 
     return tune_main(args=args)
@@ -113,6 +119,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
+    require("skimage", "scipy", "matplotlib")
     from services.tools.track import main as track_main
 
     return track_main(args=args)
@@ -264,6 +271,12 @@ def main(argv: list[str] | None = None) -> int:
         return handler(args)
     except (ConfigError, TrackError) as exc:
         print(f"racestack: error: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:  # an optional extra not installed: one line naming it
+        extra = missing_extra(exc)
+        if extra is None:
+            raise
+        print(f"racestack {args.command}: {extra}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
