@@ -1,11 +1,13 @@
 # Two commands for a fresh machine with Python 3.11:
 #   make demo   - install into .venv, then race the stack against the simulator (telemetry recorded)
-#   make test   - install into .venv (with test tools), lint with ruff, run the test suite
+#   make test   - install into .venv (with test tools and every extra), lint, run the test suite
+# `make install` is the stack alone (every process service and `racestack up`/`demo`);
+# `make install-tools` adds the [tools] extra (figures, tune, track --from-map) and [ros2].
 PYTHON ?= python3.11
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: demo test install install-dev lint bench clean
+.PHONY: demo test install install-tools install-dev lint bench clean
 
 $(BIN)/python:
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) on PATH (or: make PYTHON=python3 ...)"; exit 1; }
@@ -15,8 +17,11 @@ $(BIN)/python:
 install: $(BIN)/python
 	$(BIN)/pip install --quiet -e .
 
+install-tools: $(BIN)/python
+	$(BIN)/pip install --quiet -e '.[tools,ros2]'
+
 install-dev: $(BIN)/python
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/pip install --quiet -e '.[dev,tools,ros2]'
 
 lint: install-dev
 	$(BIN)/ruff check .

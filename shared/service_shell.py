@@ -8,7 +8,8 @@ line and exit code 2; the body must return when ``stop`` is set (closing its Zen
 A bad start is one line on stderr and exit code 2, never a traceback (issue #16): a usage
 error (``OneLineArgumentParser``), an ``--out`` folder that cannot be written (checked
 before anything starts; a folder made for the check is removed again), a session Zenoh
-refuses to open (``BusOpenError``: e.g. the hub port already in use). A hub that cannot be
+refuses to open (``BusOpenError``: e.g. the hub port already in use), an optional extra
+not installed (``shared.extras.MissingExtraError``). A hub that cannot be
 reached is no error: Zenoh keeps retrying and the service waits, but ``HubWatch`` says
 once, after ``HUB_WAIT_S``, that nothing listens at the hub's endpoint and what to do.
 """
@@ -28,6 +29,7 @@ from pathlib import Path
 from shared.bus import BusOpenError, FaultCounter
 from shared.config import BusSettings, ConfigError, RacestackConfig, load_config
 from shared.config.bus import parse_endpoint
+from shared.extras import MissingExtraError
 from shared.messages import MessageError
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
 from shared.track import TrackError
@@ -292,7 +294,7 @@ def run_service(
     watch = HubWatch(name, hub_endpoints(cfg.bus, name)).start()
     try:
         return body(cfg, args, stop)
-    except (ConfigError, TrackError, BusOpenError) as exc:
+    except (ConfigError, TrackError, BusOpenError, MissingExtraError) as exc:
         remove_empty_dirs(created)
         print(f"{name}: error: {exc}", file=sys.stderr)
         return 2

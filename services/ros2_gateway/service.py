@@ -48,6 +48,7 @@ from shared.bus import Bus, DropOldestQueue, Subscription, TypedPublisher
 from shared.car import CAR
 from shared.config import RacestackConfig
 from shared.config.ros2 import Ros2Settings, Ros2Topic
+from shared.extras import require
 from shared.keys import DRIVE_CMD, EVENTS_LOG, IMU, ODOM, PLAN, POSE, SCAN, STATE
 from shared.messages import (
     DriveCmd,
@@ -160,6 +161,13 @@ class Ros2GatewayService(Service):
                         uses_attachment(topic, settings),
                     )
                 )
+
+    @classmethod
+    def body(cls, cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
+        """``Service.body`` once rosbags (the ``[ros2]`` extra) is there: without it, one line
+        and exit code 2 (``shared.extras.MissingExtraError``) before the bus is opened."""
+        require("rosbags")
+        return super().body(cfg, args, stop)
 
     @classmethod
     def create(cls, cfg: RacestackConfig, args: argparse.Namespace, bus: Bus) -> Ros2GatewayService:

@@ -11,7 +11,8 @@ the messages the F1TENTH ROS 2 VESC stack consumes on ``/drive``)::
         float32 acceleration [m/s^2], float32 jerk [m/s^3]
     ackermann_msgs/msg/AckermannDriveStamped: std_msgs/Header header, AckermannDrive drive
 
-Pure: building a typestore reads no file and opens nothing.
+Pure: building a typestore reads no file and opens nothing. ``rosbags`` is the ``[ros2]``
+extra: it is imported when a typestore is built, so this module imports without it.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from __future__ import annotations
 from functools import cache
 from typing import Any, Literal
 
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from shared.extras import require
 
 #: ``ackermann_msgs/msg/AckermannDrive`` (the documented fields, in order).
 ACKERMANN_DRIVE_MSG = """\
@@ -35,16 +36,19 @@ std_msgs/Header header
 ackermann_msgs/AckermannDrive drive
 """
 
-_STORES = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}
-
 Distro = Literal["humble", "jazzy"]
 
 
 @cache
 def make_typestore(distro: Distro) -> Any:
     """The typestore of ``distro`` ("humble" | "jazzy") with ackermann_msgs registered
-    (cached: one per distribution and process)."""
-    ts = get_typestore(_STORES[distro])
+    (cached: one per distribution and process). Raises ``shared.extras.MissingExtraError``
+    without rosbags."""
+    require("rosbags")
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    stores = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}
+    ts = get_typestore(stores[distro])
     types: dict[str, Any] = {}
     types.update(get_types_from_msg(ACKERMANN_DRIVE_MSG, "ackermann_msgs/msg/AckermannDrive"))
     types.update(

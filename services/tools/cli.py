@@ -20,23 +20,17 @@ import runpy
 import sys
 from collections.abc import Callable
 
+from shared import roster
 from shared.config import ConfigError, load_config
 from shared.config.methods import planner_methods
+from shared.extras import missing_extra, require
 from shared.service_shell import OneLineArgumentParser, positive_int
 from shared.track import TrackError
 
 Handler = Callable[[argparse.Namespace], int]
-#: Services startable with ``racestack run NAME`` (each is ``python -m services.NAME``).
-SERVICES = (
-    "router",
-    "simulator",
-    "localization_bridge",
-    "planner",
-    "telemetry",
-    "vesc_driver",
-    "lidar_driver",
-    "ros2_gateway",
-)
+#: Services startable with ``racestack run NAME`` (each is ``python -m services.NAME``): the
+#: roster's processes, in its order.
+SERVICES = roster.names()
 
 
 def _cmd_laps(args: argparse.Namespace) -> int:
@@ -97,18 +91,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if not args.no_figures:
+        require("matplotlib")  # checked before the methods race, not after
     from services.tools.bench import main as bench_main
 
     return bench_main(args=args)
 
 
 def _cmd_mintime(args: argparse.Namespace) -> int:
+    if not args.no_figures:
+        require("matplotlib")
     from services.tools.mintime import main as mintime_main
 
     return mintime_main(args=args)
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
+    require("optuna", "matplotlib")
     from services.tools.tune import main as tune_main
 
     return tune_main(args=args)
@@ -121,6 +120,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
+    require("skimage", "scipy", "matplotlib")
     from services.tools.track import main as track_main
 
     return track_main(args=args)
@@ -275,6 +275,12 @@ def main(argv: list[str] | None = None) -> int:
         return handler(args)
     except (ConfigError, TrackError) as exc:
         print(f"racestack: error: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:  # an optional extra not installed: one line naming it
+        extra = missing_extra(exc)
+        if extra is None:
+            raise
+        print(f"racestack {args.command}: {extra}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

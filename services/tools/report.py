@@ -38,6 +38,7 @@ from shared.evaluation import (
     write_figures,
     write_results,
 )
+from shared.extras import MissingExtraError, require
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
 from shared.service_shell import OneLineArgumentParser, plain_help
 from shared.track import Track, TrackError, load_track
@@ -312,6 +313,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--config", help="TOML configuration (curvature settings of Fig. 4/5)")
     ap.add_argument("--no-figures", action="store_true", help="print the table only")
     args = ap.parse_args(argv)
+    if not args.no_figures:
+        try:
+            require("matplotlib")  # the [tools] extra
+        except MissingExtraError as exc:
+            print(f"racestack report: {exc}", file=sys.stderr)
+            return 2
     created: list[Path] = []
 
     def unusable(out: Path) -> bool:  # before the table: an error is then the only output

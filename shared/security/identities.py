@@ -16,31 +16,27 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from shared.roster import ROSTER
+from shared.roster import hub as roster_hub
+
 #: The identity of the ROS 2 side: zenoh-bridge-ros2dds, or rmw_zenoh's router or nodes,
 #: connecting to the hub with this certificate; it may put the keys of the inbound
 #: ``[[ros2.topics]]`` (ROS -> stack), which the ros2_gateway turns into ``vehicle/*``.
 ROS2_IDENTITY = "ros2"
 
-#: Every identity ``racestack certs`` makes a certificate for: the processes of the stack,
-#: the real-car drivers and gateways, the launcher (the hub of ``racestack up``), an
-#: operator's console (allowed to send ``sim/control``) and the ROS 2 side.
-IDENTITIES: tuple[str, ...] = (
-    "router",
-    "simulator",
-    "localization_bridge",
-    "planner",
-    "telemetry",
-    "vesc_driver",
-    "lidar_driver",
-    "ros2_gateway",
-    "launcher",
-    "operator",
-    ROS2_IDENTITY,
-)
+#: The identities that are no process service of the roster: the launcher (``racestack
+#: up``), an operator's console (allowed to send ``sim/control``) and the ROS 2 side.
+OTHER_IDENTITIES: tuple[str, ...] = ("launcher", "operator", ROS2_IDENTITY)
 
-#: The identity of the hub in the secure profile: the router (``services/router``) carries
-#: the access rules; every other process, the launcher included, is a client of it.
-HUB_IDENTITY = "router"
+#: Every identity ``racestack certs`` makes a certificate for: each process service of the
+#: roster (``shared.roster``, in its order: the stack, the real-car drivers and gateways),
+#: then ``OTHER_IDENTITIES``.
+IDENTITIES: tuple[str, ...] = (*(p.identity for p in ROSTER), *OTHER_IDENTITIES)
+
+#: The identity of the hub in the secure profile: the router (``services/router``, the
+#: roster's hub) carries the access rules; every other process, the launcher included, is a
+#: client of it.
+HUB_IDENTITY = roster_hub().identity
 #: Environment variable that overrides ``[bus] certs_dir`` (the launcher sets it for its
 #: children when it made a throwaway certificates folder in the run folder).
 CERTS_DIR_ENV = "RACESTACK_CERTS_DIR"

@@ -10,37 +10,34 @@ in that column, and a service named there declares it. Free text beside the name
 
 from __future__ import annotations
 
+import importlib
 import re
 from pathlib import Path
 
 import pytest
 
-from services.lidar_driver.service import LidarService
-from services.localization_bridge.service import BridgeService
-from services.planner.service import PlannerShell
-from services.ros2_gateway.service import Ros2GatewayService
-from services.router.service import Router
-from services.simulator.service import SimulatorService
-from services.telemetry.service import TelemetryService
 from services.tools.launcher.up import Launcher
-from services.vesc_driver.service import VescService
 from shared.keys import ALIVE, TOPIC_TYPES
 from shared.messages import REGISTRY
+from shared.roster import ROSTER, Process
 from shared.service import Service, contract_rows
 
 ROOT = Path(__file__).resolve().parents[2]
-#: Everyone on the bus: the six services and the launcher.
-PARTICIPANTS: tuple[type[Service], ...] = (
-    SimulatorService,
-    BridgeService,
-    PlannerShell,
-    VescService,
-    TelemetryService,
-    Router,
-    Launcher,
-    LidarService,
-    Ros2GatewayService,
-)
+
+
+def service_class(process: Process) -> type[Service]:
+    """The ``Service`` subclass of a roster entry: the one in ``services.<name>.service``
+    whose ``NAME`` is the entry's name."""
+    module = importlib.import_module(f"{process.module}.service")
+    (cls,) = {
+        v for v in vars(module).values()
+        if isinstance(v, type) and issubclass(v, Service) and v.NAME == process.name
+    }
+    return cls
+
+
+#: Everyone on the bus: every process service of the roster and the launcher.
+PARTICIPANTS: tuple[type[Service], ...] = (*(service_class(p) for p in ROSTER), Launcher)
 ALIVE_ROW = f"{ALIVE}/<service>"
 COLUMNS = ("key", "message", "fields", "rate", "qos", "publishers", "subscribers")
 _ANYONE = re.compile(r"\b(any|every) service\b")

@@ -23,6 +23,7 @@ from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.config import RacestackConfig
 from shared.config.bus import parse_endpoint
 from shared.outdir import writable_dir_problem
+from shared.roster import hub as roster_hub
 from shared.security.identities import CA_CERT, CERTS_DIR_ENV, HUB_IDENTITY, identity_files
 from shared.service_shell import endpoint_reachable
 
@@ -89,7 +90,8 @@ def run_secure(
     endpoint = hub_endpoint(cfg)
     ep = parse_endpoint(endpoint)
     with Supervisor(log_dir=run_dir / "logs") as hub:
-        child = hub.start(HUB_IDENTITY, service_argv(HUB_IDENTITY, config_path))
+        router = roster_hub().name  # the process; HUB_IDENTITY is its certificate's name
+        child = hub.start(router, service_argv(router, config_path))
         tcp = f"tcp/{ep.host}:{ep.port}"
         if not hub.wait_until(lambda: endpoint_reachable(tcp), HUB_START_TIMEOUT_S):
             return _cannot_start(f"the router did not listen on {endpoint} within "

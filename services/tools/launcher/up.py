@@ -42,14 +42,15 @@ from shared.messages import (
     SimControl,
 )
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
+from shared.roster import up_names
 from shared.service import Service, publishes, subscribes
 from shared.service_shell import HUB_WAIT_S, endpoint_reachable, hub_endpoints
 from shared.track import Track, load_track
 
 log = logging.getLogger(__name__)
 
-#: The services `racestack up` starts, in start order.
-STACK = ("simulator", "localization_bridge", "planner", "telemetry")
+#: The services `racestack up` starts, in start order (the roster's ``up`` entries).
+STACK = up_names()
 
 
 class Launcher(Service):
