@@ -151,3 +151,75 @@ class Recovery:
         self.active = True
         self.episodes += 1
 
+
+
+#: The car counts as held still while it stays within this distance [m] of where it stood
+#: (larger than the pose noise and than a car rocking between small commands, smaller than
+#: one planner tick at racing speed).
+STILL_RADIUS_M = 0.25
+
+
+class StallWatch:
+    """How long the car itself has stood still under a method's commands [s].
+
+    Judged by the car's poses, not by the commands: a method that alternates small forward
+    and backward commands holds the car still as surely as one that commands nothing. The
+    car stands still while it stays within ``STILL_RADIUS_M`` of an anchor; leaving that
+    circle moves the anchor to the car and restarts the count. Only ticks the method drove
+    count (``update(..., counts=False)`` keeps the count, e.g. a braking or failed tick).
+    """
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the anchor and the count."""
+        self._anchor: tuple[float, float] | None = None
+        self.stalled_s = 0.0
+
+    def update(self, x_m: float, y_m: float, dt_s: float, counts: bool = True) -> float:
+        """The car's rear axle at (x, y) [m] after a tick of `dt_s` [s]; returns how long
+        it has stood still [s]."""
+        if self._anchor is None or math.hypot(
+            x_m - self._anchor[0], y_m - self._anchor[1]
+        ) > STILL_RADIUS_M:
+            self._anchor = (x_m, y_m)
+            self.stalled_s = 0.0
+        elif counts:
+            self.stalled_s += dt_s
+        return self.stalled_s
+
+
+class HandOver:
+    """The speed ramp from the recovery rule back to the method.
+
+    After the rule hands the car back, the method starts cold and may ask for its racing
+    speed at once (5-8 m/s from the rule's 1 m/s spins a car in a bend). Until its command is
+    within reach, each tick's speed command is capped at the last one plus what the car can
+    gain in a tick, ``a_max dt`` (its acceleration limit): the method takes over at the car's
+    speed and ramps up as the car can.
+
+    Args:
+        accel_mps2: the car's acceleration limit a_max [m/s^2].
+    """
+
+    def __init__(self, accel_mps2: float) -> None:
+        self.accel_mps2 = float(accel_mps2)
+        self.active = False
+        self._last = 0.0
+
+    def start(self, speed_mps: float) -> None:
+        """The rule hands over with the car at (about) `speed_mps` [m/s]."""
+        self.active = True
+        self._last = abs(float(speed_mps))
+
+    def cap(self, speed_mps: float, dt_s: float) -> float:
+        """The method's speed command [m/s], capped while handing over (same sign)."""
+        if not self.active:
+            return speed_mps
+        reach = self._last + self.accel_mps2 * dt_s
+        if abs(speed_mps) <= reach:
+            self.active = False
+            return speed_mps
+        self._last = reach
+        return math.copysign(reach, speed_mps)

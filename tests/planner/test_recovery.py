@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from services.planner.mpc.planner import RECOVERING, SOLVED, Planner
-from services.planner.recovery import Recovery
+from services.planner.raceline.planner import RacelinePlanner
+from services.planner.recovery import STILL_RADIUS_M, HandOver, Recovery, StallWatch
 from services.tools.bench import LoopOptions, run_method
 from shared.config import RacestackConfig
 from shared.config.planner import PlannerSettings, RecoverySettings
@@ -88,6 +89,68 @@ def test_planner_hands_over_and_resumes_cold(track) -> None:
     x, y, yaw = _pose_on(track, 2.4, 0.0)
     assert planner.step(x, y, yaw).status == SOLVED
     assert planner.recovery.episodes == 1
+
+
+def test_stall_is_judged_by_the_car_not_the_commands() -> None:
+    """A car rocking by a few centimetres (small forward and backward commands, pose noise)
+    stands still; one that moves on does not; ticks the method did not drive do not count."""
+    watch = StallWatch()
+    rng = np.random.default_rng(0)
+    t = 0.0
+    for k in range(30):  # +-4 cm of rocking and 1.5 cm of pose noise, 1.5 s
+        x = 0.04 * (-1) ** k + rng.normal(0.0, 0.015)
+        t = watch.update(x, rng.normal(0.0, 0.015), 0.05)
+    assert t == pytest.approx(29 * 0.05)
+    assert watch.update(0.0, 0.0, 0.05, counts=False) == pytest.approx(t)  # a braking tick
+    assert watch.update(STILL_RADIUS_M + 0.05, 0.0, 0.05) == 0.0  # moved on: restarts
+    # driving at 2 m/s: the count restarts every few ticks, far below any stall time
+    assert max(watch.update(0.1 * k, 0.0, 0.05) for k in range(100)) <= 0.15
+
+
+def test_the_rule_moves_on_a_car_held_still_by_oscillating_commands(track) -> None:
+    """The method's commands alternate +0.4 / -0.3 m/s (each far above a "still" speed),
+    the car barely moves: after ``stall_s`` the rule takes over."""
+    planner = Planner(track, PlannerSettings())
+    x, y, yaw = _pose_on(track, 2.0, 0.0)
+    statuses = []
+    for k in range(30):  # 1.5 s at 20 Hz, the car within 3 cm of where it stands
+        statuses.append(planner.step(x + 0.03 * (k % 2), y, yaw).status)
+    assert statuses[0] == SOLVED
+    assert RECOVERING in statuses
+    first = statuses.index(RECOVERING)
+    assert 1.0 <= first * 0.05 <= 1.2  # stall_s = 1 s of the car standing
+    assert planner.recovery.episodes == 1
+
+
+def test_hand_over_ramps_from_the_cars_speed() -> None:
+    ramp = HandOver(accel_mps2=9.51)
+    assert ramp.cap(8.0, 0.05) == 8.0  # not handing over: untouched
+    ramp.start(1.0)
+    caps = [ramp.cap(8.0, 0.05) for _ in range(5)]
+    assert caps == pytest.approx([1.0 + 9.51 * 0.05 * (k + 1) for k in range(5)])
+    assert ramp.active
+    assert ramp.cap(2.0, 0.05) == 2.0 and not ramp.active  # within reach: the method's own
+    ramp.start(1.0)
+    assert ramp.cap(-5.0, 0.05) == pytest.approx(-(1.0 + 9.51 * 0.05))  # reverse, capped too
+
+
+@pytest.mark.parametrize("kind", ["mpc", "tracker"])
+def test_the_hand_over_never_commands_more_than_the_car_can_reach(track, kind) -> None:
+    """After a recovery the method's speed commands rise from the rule's speed by at most
+    a_max Ts a tick."""
+    settings = PlannerSettings()
+    planner = Planner(track, settings) if kind == "mpc" else RacelinePlanner(track, settings)
+    a_step = 9.51 * settings.dt_s  # the default car's a_max over one tick
+    w_r = float(track.interp_width(3.0)[0])
+    planner.step(*_pose_on(track, 2.0, 0.0))
+    res = planner.step(*_pose_on(track, 3.0, w_r + 0.5))  # off the track: the rule drives
+    assert res.status == RECOVERING
+    last = res.command.speed_mps
+    for k in range(12):
+        res = planner.step(*_pose_on(track, 3.2 + 0.1 * k, 0.0))
+        assert res.status != RECOVERING
+        assert abs(res.command.speed_mps) <= last + a_step + 1e-9, k
+        last = abs(res.command.speed_mps)
 
 
 @pytest.mark.slow

@@ -39,7 +39,7 @@ from services.planner.mintime.store import min_time_lap
 from services.planner.mpc.model import NU, NX, S, SlipModel, SpeedLoop, U, discretise
 from services.planner.mpc.problem import UA, XA, XA_SPEED, OcpProblem, build_problem
 from services.planner.mpc.solver import SolverHandle, make_solver
-from services.planner.recovery import Recovery, RecoveryCommand
+from services.planner.recovery import HandOver, Recovery, RecoveryCommand, StallWatch
 from services.planner.reference import ReferencePath, centreline_path, min_time_path
 from shared.config.methods import MethodSetup, method_setup
 from shared.config.planner import (
@@ -61,8 +61,6 @@ SOLVED, FALLBACK, BRAKING, RECOVERING = (
     PlanStatusName.BRAKING,
     PlanStatusName.RECOVERING,
 )
-#: A solved command slower than this [m/s] counts as holding the car still (recovery).
-STILL_SPEED_MPS = 0.1
 #: Half-width of the arc-length window searched around the previous projection when the
 #: nearby search (``Track.project_near``, +-1 m) finds its minimum at its edge [m]
 #: (0.5 s at 10 m/s).
@@ -308,6 +306,8 @@ class Planner:
         self.recovery = Recovery(
             track, settings.recovery, settings.wheelbase_m, min(-b.delta_rad[0], b.delta_rad[1])
         )
+        self._stall = StallWatch()
+        self._handover = HandOver(car.accel_max_mps2)
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -319,7 +319,9 @@ class Planner:
         self._u_applied = np.zeros(NU)
         self._failures = 0
         self._prepared: _Prepared | None = None
-        self._still_ticks = 0  #: solved ticks in a row that commanded almost no speed
+        self._stall.reset()
+        self._handover.active = False
+        self._drove = False  #: the last tick's command was the method's own (solved)
         self._pose_prev: tuple[float, float, float] | None = None
         self._v_est = 0.0  #: the car's estimated speed at the last pose [m/s] (speed model)
         self.recovery.reset()
@@ -388,14 +390,16 @@ class Planner:
         if self._speed_loop is not None:
             x0[XA_SPEED] = self._estimate_speed(x_m, y_m, yaw_rad)
         was_recovering = self.recovery.active
-        stalled = self._still_ticks * self.settings.dt_s
+        stalled = self._stall.update(x_m, y_m, self.settings.dt_s, counts=self._drove)
+        self._drove = False
         rec = self.recovery.update(x_m, y_m, yaw_rad, s0, e0, stalled)
         if rec is not None:
-            self._still_ticks = 0
+            self._stall.reset()
             s0 = x0[XA.PROGRESS] = self._s_prev = self.recovery.s_m
             self._s_path_prev = None
             return self._recovering(x0, s0, e0, rec, on_command)
-        if was_recovering:  # resume where the rule brought the car back
+        if was_recovering:  # resume where the rule brought the car back, at its speed
+            self._handover.start(float(self._u_applied[U.V_L]))
             s0, e0 = (float(v) for v in self.track.project(
                 np.array([x_m, y_m]), s_hint=self.recovery.s_m, window_m=1.0))
             x0[XA.PROGRESS] = self._s_prev = s0
@@ -437,9 +441,11 @@ class Planner:
         self._failures = 0
         self._w_prev = w
         u0 = np.clip(w[pr.input_index(0)][:NU], self._u_lo, self._u_hi)
+        if self._handover.active:  # ramp up from the car's speed after a recovery
+            u0[U.V_L] = self._handover.cap(float(u0[U.V_L]), self.settings.dt_s)
         self._u_applied = u0
         speed, limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
-        self._still_ticks = self._still_ticks + 1 if abs(speed) < STILL_SPEED_MPS else 0
+        self._drove = True
         command = DriveCommand(speed, float(u0[U.DELTA]))
         if on_command is not None:
             on_command(command)

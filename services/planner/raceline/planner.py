@@ -55,7 +55,7 @@ import numpy as np
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mpc.planner import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
-from services.planner.recovery import Recovery
+from services.planner.recovery import HandOver, Recovery, StallWatch
 from shared.config.methods import RACELINE
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
@@ -417,6 +417,8 @@ class RacelinePlanner:
         self.recovery = Recovery(
             track, settings.recovery, settings.wheelbase_m, min(-b.delta_rad[0], b.delta_rad[1])
         )
+        self._stall = StallWatch()
+        self._handover = HandOver(self.vehicle.accel_max_mps2)
         self.reset()
 
     @property
@@ -430,6 +432,10 @@ class RacelinePlanner:
         self._s_track: float | None = None
         self.tracker.reset()
         self.recovery.reset()
+        self._stall.reset()
+        self._handover.active = False
+        self._drove = False  #: the last tick's command was the tracker's
+        self._speed_cmd = 0.0  #: the last speed command [m/s]
 
     def prepare(self) -> None:
         """Nothing to do ahead of time (the ``Planner`` interface)."""
@@ -456,7 +462,9 @@ class RacelinePlanner:
         s_t, e_t = self._project_track(x_m, y_m)
         self._s_track = s_t
         was_recovering = self.recovery.active
-        rec = self.recovery.update(x_m, y_m, yaw_rad, s_t, e_t)
+        stalled = self._stall.update(x_m, y_m, self.settings.dt_s, counts=self._drove)
+        self._drove = False
+        rec = self.recovery.update(x_m, y_m, yaw_rad, s_t, e_t, stalled)
         hint = self._s_line
         if rec is not None or was_recovering:
             # follow the rule's anchored progress, on the track and (scaled) on the line
@@ -465,6 +473,8 @@ class RacelinePlanner:
             hint = float(line.project(np.array([cx, cy]), guess, 2.0)[0])
         if rec is not None:
             self._s_line = hint
+            self._stall.reset()
+            self._speed_cmd = rec.speed_mps
             cmd = DriveCommand(rec.speed_mps, rec.steering_rad)
             if on_command is not None:
                 on_command(cmd)
@@ -480,9 +490,15 @@ class RacelinePlanner:
                 t0,
                 status=RECOVERING,
             )
+        if was_recovering:  # hand back at the car's speed and ramp up
+            self._handover.start(self._speed_cmd)
         tc = self.tracker.command(cx, cy, yaw_rad, hint)
         self._s_line = tc.s_m
         speed = min(max(tc.speed_mps, self._speed_lim[0]), self._speed_lim[1])
+        if self._handover.active:
+            speed = self._handover.cap(speed, self.settings.dt_s)
+        self._speed_cmd = speed
+        self._drove = True
         delta = min(max(tc.steering_rad, self._delta_lim[0]), self._delta_lim[1])
         cmd = DriveCommand(speed, delta)
         if on_command is not None:
