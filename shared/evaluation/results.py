@@ -14,7 +14,13 @@
 
 ``reference`` (when the bench computed it) is the minimum-time lap of the simulator's car
 (``services.planner.mintime.ocp``); each method's ``ratio_to_min_time`` is its mean lap time
-over that lap (1.0 would be the physical limit; below 1 is a bug).
+over that lap (1.0 would be the physical limit). The limit is also a rule of the comparison:
+a lap faster than it was driven by breaking a rule the limit keeps (cutting inside the
+boundaries, or above the speed cap), so each method records ``below_limit_laps`` (laps faster
+than the limit), ``over_cap_events`` (times the car's measured speed rose above the cap by
+more than ``CAP_TOLERANCE``) with ``max_speed_mps``, and ``violations`` = off-track events of
+the whole run + laps below the limit + excursions over the cap; ``errors`` names each kind
+found (an empty list: a clean run).
 """
 
 from __future__ import annotations
@@ -26,6 +32,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+#: A lap counts as below the limit when it is faster than the minimum-time lap by more than
+#: this [s] (the lap timer's interpolation and the limit's rounding).
+LIMIT_TOLERANCE_S = 1e-3
+#: The car's speed counts as over the cap above (1 + this) x the limit's top speed.
+CAP_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -161,12 +173,49 @@ def results_document(
     if reference is not None:
         doc["reference"] = dict(reference)
         limit = float(reference["min_time_lap_s"])
-        for entry in doc["methods"].values():
+        cap = reference.get("v_max_mps")
+        for run in runs:
+            entry = doc["methods"][run.name]
             mean = entry["lap_time_s"]["mean"]
             entry["ratio_to_min_time"] = None if mean is None else mean / limit
+            entry.update(rule_check(run, limit, None if cap is None else float(cap)))
     if meta:
         doc["meta"] = meta
     return doc
+
+
+def over_cap_events(speed_mps: np.ndarray, cap_mps: float) -> int:
+    """Times the speed rose above ``(1 + CAP_TOLERANCE) cap_mps`` (each excursion once)."""
+    over = np.asarray(speed_mps, dtype=float) > (1.0 + CAP_TOLERANCE) * cap_mps
+    return int(np.count_nonzero(over[1:] & ~over[:-1]) + (1 if over.size and over[0] else 0))
+
+
+def rule_check(run: MethodRun, limit_s: float, cap_mps: float | None) -> dict[str, Any]:
+    """A run against the rules the limit keeps (module docstring): ``below_limit_laps``,
+    ``over_cap_events``, ``max_speed_mps``, ``violations`` and ``errors`` (one line each)."""
+    fast = [lap.lap_time_s for lap in run.laps if lap.lap_time_s < limit_s - LIMIT_TOLERANCE_S]
+    speed = np.abs(np.asarray(run.trace.speed_mps, dtype=float))
+    v_top = float(speed.max()) if speed.size else None
+    over = 0 if cap_mps is None or not speed.size else over_cap_events(speed, cap_mps)
+    errors = []
+    if run.run_off_track_events:
+        errors.append(f"{run.run_off_track_events} off-track events")
+    if fast:
+        errors.append(
+            f"{len(fast)} laps below the limit (fastest {min(fast):.3f} s < {limit_s:.3f} s): "
+            "a lap faster than the minimum-time lap broke a rule the limit keeps"
+        )
+    if over:
+        errors.append(
+            f"car speed over the {cap_mps:g} m/s cap {over} times (max {v_top:.2f} m/s)"
+        )
+    return {
+        "below_limit_laps": len(fast),
+        "over_cap_events": over,
+        "max_speed_mps": v_top,
+        "violations": run.run_off_track_events + len(fast) + over,
+        "errors": errors,
+    }
 
 
 def _clean(obj: Any) -> Any:

@@ -87,10 +87,17 @@ def format_table(doc: dict[str, Any]) -> str:
     lines += [row_laps, row_off, row_e, row_t]
     if ref:
         row_r = f"{'mean lap / min-time':>24}"
+        row_b = f"{'laps below the limit':>24}"
+        row_c = f"{'over the speed cap':>24}"
         for n in names:
             r = methods[n].get("ratio_to_min_time")
             row_r += f"{'-' if r is None else f'{r:.3f}':>{width}}{'':>{pw}}"
-        lines.append(row_r)
+            row_b += f"{methods[n].get('below_limit_laps', '-'):>{width}}{'':>{pw}}"
+            row_c += f"{methods[n].get('over_cap_events', '-'):>{width}}{'':>{pw}}"
+        lines += [row_r, row_b, row_c]
+        for n in names:
+            for err in methods[n].get("errors", []):
+                lines.append(f"ERROR {n}: {err}")
     for n in names:
         if no_solver(n):
             lines.append(f"note: {n} runs no solver (pure pursuit on its line): its solve "
