@@ -30,6 +30,7 @@ from services.planner import (
     RacelinePlanner,
     Recovery,
     SolveResult,
+    ensure_artefacts,
 )
 from services.tools.bench import LoopOptions, run_method
 from services.tools.tune.search import (
@@ -221,7 +222,9 @@ class Evaluator:
         return overlay, cfg
 
     def planner_for(self, cfg: RacestackConfig) -> PlannerLike:
-        """A planner of the method with `cfg`'s settings (MPC problems built once)."""
+        """A planner of the method with `cfg`'s settings (MPC problems built once; the
+        minimum-time lap it races on made first, once per line setting)."""
+        ensure_artefacts(self.space.method, self.track, cfg.planner, cfg.simulator.vehicle)
         if self.space.method == "raceline":
             return RacelinePlanner(
                 self.track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle
