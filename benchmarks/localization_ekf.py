@@ -25,16 +25,18 @@ import time
 import numpy as np
 
 from services.localization_bridge import FusedEstimator
-from services.planner import RacelinePlanner
+from services.planner import RacelinePlanner, ensure_artefacts
 from services.simulator import SensorSuite, StepResult, rear_axle
 from services.tools.bench import LoopOptions, SimulatorPlant, race
 from shared.config import load_config
+from shared.config.methods import RACELINE
 from shared.config.simulator import PoseSensorSettings
 from shared.track import load_track
 
 
 def drive(track, cfg, laps: int) -> list[StepResult]:
     """Every simulation step of a raceline race on the true pose."""
+    ensure_artefacts(RACELINE, track, cfg.planner, cfg.simulator.vehicle)
     planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
     plant = SimulatorPlant(track, cfg.simulator, LoopOptions(laps=laps))
     steps: list[StepResult] = []

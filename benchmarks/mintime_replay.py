@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from services.planner.mintime.ocp import MinTimeSettings
-from services.planner.mintime.store import min_time_lap
+from services.planner.mintime.store import make_min_time_lap
 from services.tools.bench.replay import ReplayOptions, replay_min_time
 from shared.config import load_config
 from shared.track import load_track
@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     cfg = load_config(None)
     track = load_track(args.track)
-    lap = min_time_lap(track, cfg.simulator.vehicle, MinTimeSettings(v_max_mps=args.v_max))
+    lap = make_min_time_lap(track, cfg.simulator.vehicle, MinTimeSettings(v_max_mps=args.v_max))
     res = replay_min_time(lap, track, cfg.simulator, ReplayOptions(laps=args.laps))
     print(f"{track.name} ({track.length_m:.2f} m), v_max {args.v_max:g} m/s: OCP lap "
           f"{lap.lap_time_s:.4f} s ({'cached' if lap.cache_hit else 'solved'})")

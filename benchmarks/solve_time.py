@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from services.planner import Planner
+from services.planner import Planner, ensure_artefacts
 from services.tools.bench import LoopOptions, ModelPlant, race
 from services.tools.bench.closed_loop import SimulatorPlant
 from shared.config import ConfigError, RacestackConfig, load_config
@@ -56,6 +56,7 @@ def run(
             ),
         }
     )
+    ensure_artefacts(method, track, settings, cfg.simulator.vehicle)  # cimpcc-line's line
     t0 = time.perf_counter()
     planner = Planner(track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
     setup_s = time.perf_counter() - t0

@@ -9,14 +9,36 @@ services.planner``). What tools may use (``docs/architecture.md``, rule 3) is ``
   track, sharing MPC problems and solvers;
 - the kinematic model the MPC plans with: ``kinematic_bicycle``, ``discretise``,
   ``step_numpy``;
-- the minimum-time lap (``MinTimeLap``, ``MinTimeSettings``, ``MinTimeError``,
-  ``min_time_lap``: solved once, then cached) and its tracker (``Tracker``, ...);
+- the minimum-time lap (``MinTimeLap``, ``MinTimeSettings``, ``MinTimeError``): an
+  artefact the tools make (``ensure_artefacts(method, track, settings, vehicle)`` before
+  they build planners; ``make_min_time_lap``: read, or solved once and cached) and the
+  planner only reads (``load_min_time_lap``; missing: ``MinTimeArtefactMissingError``,
+  one line naming the ``racestack mintime`` command that makes it); which lap a use races
+  on (``LapRequest``, ``limit_request``, ``line_request``, ``raceline_request``,
+  ``request_for``, ``laps_of``, ``MIN_TIME_USES``); and its tracker (``Tracker``, ...);
 """
 
 from services.planner.interface import PlannerLike
 from services.planner.mintime.model import DELTA
+from services.planner.mintime.ocp import CODE_VERSION as MIN_TIME_CODE_VERSION
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
-from services.planner.mintime.store import min_time_lap
+from services.planner.mintime.requests import LIMIT as MIN_TIME_LIMIT
+from services.planner.mintime.requests import USES as MIN_TIME_USES
+from services.planner.mintime.requests import (
+    LapRequest,
+    laps_of,
+    limit_request,
+    line_request,
+    raceline_request,
+    request_for,
+)
+from services.planner.mintime.store import (
+    MinTimeArtefactMissingError,
+    ensure_artefacts,
+    load_min_time_lap,
+    make_min_time_lap,
+    min_time_lap,
+)
 from services.planner.mpc.model import discretise, kinematic_bicycle, step_numpy
 from services.planner.mpc.planner import (
     BRAKING,
@@ -36,9 +58,14 @@ __all__ = [
     "BRAKING",
     "DELTA",
     "FALLBACK",
+    "MIN_TIME_CODE_VERSION",
+    "MIN_TIME_LIMIT",
+    "MIN_TIME_USES",
     "RECOVERING",
     "SOLVED",
     "DriveCommand",
+    "LapRequest",
+    "MinTimeArtefactMissingError",
     "MinTimeError",
     "MinTimeLap",
     "MinTimeSettings",
@@ -53,8 +80,16 @@ __all__ = [
     "TrackerGains",
     "TrackerTiming",
     "discretise",
+    "ensure_artefacts",
     "kinematic_bicycle",
+    "laps_of",
+    "limit_request",
+    "line_request",
+    "load_min_time_lap",
+    "make_min_time_lap",
     "make_planner",
     "min_time_lap",
+    "raceline_request",
+    "request_for",
     "step_numpy",
 ]

@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from services.planner.interface import PlannerLike
+from services.planner.mintime.store import MinTimeArtefactMissingError
 from services.planner.mpc.planner import DriveCommand, SolveResult
 from services.planner.registry import make_planner
 from shared.bus import Bus, ChannelSubscription
@@ -247,12 +248,18 @@ class PlannerShell(Service):
 
 
 def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
-    """The service body (see the module docstring)."""
+    """The service body (see the module docstring). A minimum-time lap the method races on
+    (``cimpcc-line``, a ``min_time`` raceline) is only read: when it is missing, the one
+    line ``MinTimeArtefactMissingError`` (a ``TrackError``: exit code 2) names the
+    ``racestack mintime`` command, with this configuration, that makes it."""
     track = load_track(cfg.track.source)
     log.info(
         "building the %s planner on %s (compiled problem cached)", cfg.planner.method, track.name
     )
-    planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+    try:
+        planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+    except MinTimeArtefactMissingError as exc:  # made by the tools, never solved here
+        raise exc.for_config(args.config, cfg.track.source) from None
     return PlannerShell.host(cfg.bus, stop, lambda bus: PlannerShell(planner, bus))
 
 

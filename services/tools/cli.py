@@ -35,13 +35,14 @@ SERVICES = roster.names()
 
 def _cmd_laps(args: argparse.Namespace) -> int:
     """Race the planner against its own kinematic model and print lap times."""
-    from services.planner import make_planner
+    from services.planner import ensure_artefacts, make_planner
     from services.tools.bench import ModelPlant, race
     from shared.track import load_track
 
     cfg = load_config(args.config)
     track = load_track(args.track or cfg.track.source)
     settings = cfg.planner.model_copy(update={"method": args.method or cfg.planner.method})
+    ensure_artefacts(settings.method, track, settings, cfg.simulator.vehicle)
     planner = make_planner(track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
     L = track.length_m
     print(f"{settings.method} on {track.name} ({L:.2f} m), kinematic model, {args.laps} laps")

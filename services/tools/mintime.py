@@ -1,12 +1,21 @@
 """``racestack mintime``: the minimum-time lap of the simulator's car, written to a folder.
 
-    racestack mintime --track T [--config F] [--v-max V] [--ds D] [--margin M] --out DIR
+    racestack mintime [--for limit|cimpcc-line|raceline] --track T [--config F]
+                      [--v-max V] [--ds D] [--margin M] [--cache DIR] --out DIR
+
+Which lap (``--for``, ``services.planner.mintime.requests``): ``limit`` (default) the car's
+limit, the bench's reference (top speed ``[planner.cimpcc] v_up_mps[0]``, or ``--v-max``,
+``--ds``, ``--margin``); ``cimpcc-line`` the line that method contours and ``raceline``
+the raceline baseline's line, each exactly as the planner of that configuration reads it
+(settings from ``[planner.cimpcc_line]`` / ``[planner.raceline]``, no overrides). The lap
+is the artefact the planner process reads: solved once per track, car and settings and
+stored in the cache (``services.planner.mintime.store``; ``--cache`` its base folder,
+default ``$RACESTACK_CACHE`` or ``~/.cache/racestack``).
 
 Writes ``DIR/mintime.json`` (lap time, settings, solver figures), ``DIR/raceline.csv`` (the
 driven line in the F1TENTH raceline format, readable with
 ``shared.track.load_f1tenth_raceline``), ``DIR/mintime_line.png`` (the line on the track
-coloured by speed) and ``DIR/mintime_speed.png`` (speed and acceleration over s). The
-solution is cached per track, car and settings (``services.planner.mintime.store``).
+coloured by speed) and ``DIR/mintime_speed.png`` (speed and acceleration over s).
 Bad input (unknown track, unwritable folder, bad numbers, no feasible lap) is one line on
 stderr and exit code 2.
 """
@@ -23,9 +32,12 @@ from typing import Any
 
 import numpy as np
 
-from services.planner.mintime.ocp import CODE_VERSION, MinTimeLap, MinTimeSettings
-from services.planner.mintime.store import min_time_lap
+from services.planner import MIN_TIME_CODE_VERSION as CODE_VERSION
+from services.planner import MIN_TIME_LIMIT as LIMIT
+from services.planner import MIN_TIME_USES as USES
+from services.planner import MinTimeLap, MinTimeSettings, make_min_time_lap, request_for
 from shared.config import ConfigError, load_config
+from shared.config.methods import RACELINE
 from shared.config.vehicle import DynamicVehicleParams
 from shared.outdir import writable_dir_problem
 from shared.track import RacelineTable, Track, TrackError, load_track, write_f1tenth_raceline
@@ -44,9 +56,13 @@ def raceline_table(lap: MinTimeLap) -> RacelineTable:
     )
 
 
-def mintime_document(lap: MinTimeLap, track: Track, vehicle: DynamicVehicleParams) -> dict:
-    """The ``mintime.json`` document (plain JSON values)."""
+def mintime_document(
+    lap: MinTimeLap, track: Track, vehicle: DynamicVehicleParams, use: str = LIMIT
+) -> dict:
+    """The ``mintime.json`` document (plain JSON values); `vehicle` the car the lap was
+    solved for, `use` which lap it is (``requests.USES``)."""
     return {
+        "for": use,
         "track": lap.track_name,
         "track_source": track.source,
         "track_length_m": lap.track_length_m,
@@ -129,9 +145,10 @@ def write_outputs(
     vehicle: DynamicVehicleParams,
     out_dir: Path,
     figures: bool = True,
+    use: str = LIMIT,
 ) -> dict[str, Any]:
     """Write mintime.json, raceline.csv and the figures; returns the JSON document."""
-    doc = mintime_document(lap, track, vehicle)
+    doc = mintime_document(lap, track, vehicle, use)
     comments = (
         f"minimum-time lap of the racestack simulator's car on {lap.track_name}: "
         f"{lap.lap_time_s:.4f} s",
@@ -163,6 +180,11 @@ def _number(text: str | None, name: str) -> float | None:
     return value
 
 
+def _say(line: str) -> None:
+    """A progress line on stdout (stderr holds only the one-line errors)."""
+    print(line, flush=True)
+
+
 def _check_out_dir(path: Path) -> None:
     problem = writable_dir_problem(path)
     if problem:
@@ -172,6 +194,10 @@ def _check_out_dir(path: Path) -> None:
 def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """Arguments of ``racestack mintime`` (numbers are checked by ``main``, one line each)."""
     ap = ap or argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    ap.add_argument("--for", dest="use", choices=USES, default=LIMIT,
+                    help="which lap: the car's limit (default; the bench's reference), the "
+                    "line cimpcc-line contours or the raceline baseline's line (the artefact "
+                    "the planner of this configuration reads)")
     ap.add_argument("--config", help="TOML configuration file (its [simulator.vehicle] car)")
     ap.add_argument("--track", help="built-in name, folder or centreline file (default: config)")
     ap.add_argument("--v-max", dest="v_max", metavar="V",
@@ -179,6 +205,8 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap.add_argument("--ds", metavar="D", help="grid spacing along the track [m] (default 0.1)")
     ap.add_argument("--margin", metavar="M",
                     help="footprint kept this far inside the boundaries [m] (default 0.02)")
+    ap.add_argument("--cache", metavar="DIR", help="cache base folder the lap is stored in "
+                    "(default $RACESTACK_CACHE, else ~/.cache/racestack)")
     ap.add_argument("--out", help="output folder (default runs/mintime-<time>)")
     ap.add_argument("--no-cache", action="store_true", help="solve even if a cached lap exists")
     ap.add_argument("--no-figures", action="store_true")
@@ -193,29 +221,42 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
         v_max = _number(args.v_max, "--v-max")
         ds = _number(args.ds, "--ds")
         margin = _number(args.margin, "--margin")
-        defaults = MinTimeSettings()
-        try:
-            settings = MinTimeSettings(
-                v_max_mps=cfg.planner.cimpcc.v_up_mps[0] if v_max is None else v_max,
-                ds_m=defaults.ds_m if ds is None else ds,
-                margin_m=defaults.margin_m if margin is None else margin,
+        use = getattr(args, "use", LIMIT)
+        vehicle, settings = request_for(use, cfg.planner, cfg.simulator.vehicle)
+        given = [name for name, value in (("--v-max", v_max), ("--ds", ds),
+                                          ("--margin", margin)) if value is not None]
+        if given and use != LIMIT:
+            raise MinTimeArgumentError(
+                f"{', '.join(given)}: only with --for limit (the {use} lap's settings are "
+                "the configuration's)"
             )
+        try:
+            if given:
+                settings = MinTimeSettings(
+                    v_max_mps=settings.v_max_mps if v_max is None else v_max,
+                    ds_m=settings.ds_m if ds is None else ds,
+                    margin_m=settings.margin_m if margin is None else margin,
+                )
         except ValueError as exc:
             raise MinTimeArgumentError(str(exc).replace("v_max_mps", "--v-max")
                                        .replace("ds_m", "--ds")
                                        .replace("margin_m", "--margin")) from None
+        if use == RACELINE and cfg.planner.raceline.line != "min_time":
+            print(f"{PROG}: note: [planner.raceline] line = {cfg.planner.raceline.line!r}: "
+                  "the raceline planner of this configuration does not race on this lap",
+                  file=sys.stderr)
         track = load_track(args.track or cfg.track.source)
         out = Path(args.out or Path("runs") / time.strftime("mintime-%Y%m%d-%H%M%S"))
         _check_out_dir(out)
-        vehicle = cfg.simulator.vehicle
-        lap = min_time_lap(track, vehicle, settings, use_cache=not args.no_cache)
+        lap = make_min_time_lap(track, vehicle, settings, getattr(args, "cache", None),
+                                use_cache=not args.no_cache, use=use, progress=_say)
     except (MinTimeArgumentError, ConfigError, TrackError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    doc = write_outputs(lap, track, vehicle, out, figures=not args.no_figures)
+    doc = write_outputs(lap, track, vehicle, out, figures=not args.no_figures, use=use)
     how = "from the cache" if lap.cache_hit else f"solved in {lap.solve_time_s:.1f} s"
     print(
-        f"minimum-time lap on {lap.track_name} ({lap.track_length_m:.2f} m): "
+        f"minimum-time lap ({use}) on {lap.track_name} ({lap.track_length_m:.2f} m): "
         f"{lap.lap_time_s:.3f} s, peak {doc['peak_speed_mps']:.2f} m/s "
         f"(v_max {lap.v_max_mps:g} m/s, tyres {lap.tyre_model})"
     )

@@ -42,7 +42,7 @@ CIMPCC_TUNED = "cimpcc-tuned"
 PlannerKind = Literal["mpc", "tracker"]
 #: What a method follows: the track's centreline, the car's minimum-time line (with its
 #: speed profile), or the raceline's own line (``[planner.raceline] line``).
-ReferenceKind = Literal["centreline", "min_time_line", "raceline"]
+ReferenceKind = Literal["centreline", "min_time_line", "planned_line"]
 #: The MPC model: the paper's kinematic bicycle, with the car's steady-state tyre slip, or
 #: with the slip and the car's speed as a state behind its speed loop.
 ModelKind = Literal["kinematic", "kinematic_slip", "kinematic_slip_speed"]
@@ -98,7 +98,7 @@ METHODS: dict[str, MethodSpec] = {
         summary="the paper's MPCC baseline: contours the centreline, a fixed speed reference",
     ),
     RACELINE: MethodSpec(
-        RACELINE, "tracker", "raceline", "raceline", None,
+        RACELINE, "tracker", "planned_line", "raceline", None,
         summary="the raceline baseline: a line with a speed profile and a model tracker",
     ),
     CIMPCC_LINE: MethodSpec(

@@ -14,6 +14,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from services.planner.mintime.store import ensure_artefacts
 from services.planner.mpc.model import (
     SPEED,
     S,
@@ -65,8 +66,10 @@ def circle(radius: float = CIRCLE_RADIUS_M, n: int = 400) -> Track:
 
 @pytest.fixture(scope="module")
 def circle_line() -> tuple[Track, ReferencePath]:
-    """The circle and its minimum-time line (solved once per test session, then cached)."""
+    """The circle and its minimum-time line (made once per test session by the tools'
+    ``ensure_artefacts``, then read from the cache by the planner's reference)."""
     track = circle()
+    ensure_artefacts(CIMPCC_LINE, track, UNCOMPILED, progress=None)
     return track, min_time_reference(track, UNCOMPILED)
 
 

@@ -204,26 +204,26 @@ def test_cache_hits_and_misses(tmp_path, monkeypatch, capped_lap: MinTimeLap) ->
     monkeypatch.setattr(store, "solve_min_time", fake_solve)
     track = circle_track(3.0, 0.3)
     cfg = MinTimeSettings(v_max_mps=4.18, ds_m=0.2)
-    first = store.min_time_lap(track, CAR, cfg, cache_dir=tmp_path)
-    again = store.min_time_lap(track, CAR, cfg, cache_dir=tmp_path)
+    first = store.make_min_time_lap(track, CAR, cfg, cache_dir=tmp_path)
+    again = store.make_min_time_lap(track, CAR, cfg, cache_dir=tmp_path)
     assert len(calls) == 1 and not first.cache_hit and again.cache_hit
     assert again.lap_time_s == capped_lap.lap_time_s
     assert np.array_equal(again.states, capped_lap.states)
     assert again.status == capped_lap.status and again.tyre_model == capped_lap.tyre_model
     # anything the lap depends on changes the key
-    store.min_time_lap(track, CAR, MinTimeSettings(v_max_mps=4.18, ds_m=0.2, margin_m=0.03),
+    store.make_min_time_lap(track, CAR, MinTimeSettings(v_max_mps=4.18, ds_m=0.2, margin_m=0.03),
                        cache_dir=tmp_path)
-    store.min_time_lap(track, CAR.model_copy(update={"mu": 1.0}), cfg, cache_dir=tmp_path)
-    store.min_time_lap(circle_track(3.0, 0.31), CAR, cfg, cache_dir=tmp_path)
+    store.make_min_time_lap(track, CAR.model_copy(update={"mu": 1.0}), cfg, cache_dir=tmp_path)
+    store.make_min_time_lap(circle_track(3.0, 0.31), CAR, cfg, cache_dir=tmp_path)
     assert len(calls) == 4
     # a damaged entry is a miss, then replaced
     key = store.cache_key(track, CAR, cfg)
     store.cache_file(key, tmp_path).write_bytes(b"not a cache file")
-    assert not store.min_time_lap(track, CAR, cfg, cache_dir=tmp_path).cache_hit
-    assert store.min_time_lap(track, CAR, cfg, cache_dir=tmp_path).cache_hit
+    assert not store.make_min_time_lap(track, CAR, cfg, cache_dir=tmp_path).cache_hit
+    assert store.make_min_time_lap(track, CAR, cfg, cache_dir=tmp_path).cache_hit
     assert len(calls) == 5
     # use_cache=False always solves
-    store.min_time_lap(track, CAR, cfg, cache_dir=tmp_path, use_cache=False)
+    store.make_min_time_lap(track, CAR, cfg, cache_dir=tmp_path, use_cache=False)
     assert len(calls) == 6
 
 

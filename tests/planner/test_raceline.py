@@ -275,10 +275,12 @@ def test_the_planning_car_has_the_planner_s_steering_range() -> None:
 
 
 def _race(track: Track, laps: int):
+    from services.planner import ensure_artefacts
     from services.tools.bench import LoopOptions, run_method
     from shared.config import load_config
 
     cfg = load_config(None)
+    ensure_artefacts("raceline", track, cfg.planner, cfg.simulator.vehicle)  # the tools' job
     planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
     run = run_method("raceline", planner, track, cfg.simulator, LoopOptions(laps=laps))
     return planner, run

@@ -8,11 +8,13 @@ import math
 import numpy as np
 import pytest
 
+from services.planner.mintime.store import ensure_artefacts
 from services.planner.mpc.planner import RECOVERING, SOLVED, Planner
 from services.planner.raceline.planner import RacelinePlanner
 from services.planner.recovery import STILL_RADIUS_M, HandOver, Recovery, StallWatch
 from services.tools.bench import LoopOptions, run_method
 from shared.config import RacestackConfig
+from shared.config.methods import RACELINE
 from shared.config.planner import PlannerSettings, RecoverySettings
 from shared.config.simulator import SimulatorSettings
 from shared.config.vehicle import vehicle_preset
@@ -139,6 +141,8 @@ def test_the_hand_over_never_commands_more_than_the_car_can_reach(track, kind) -
     """After a recovery the method's speed commands rise from the rule's speed by at most
     a_max Ts a tick."""
     settings = PlannerSettings()
+    if kind == "tracker":
+        ensure_artefacts(RACELINE, track, settings)
     planner = Planner(track, settings) if kind == "mpc" else RacelinePlanner(track, settings)
     a_step = 9.51 * settings.dt_s  # the default car's a_max over one tick
     w_r = float(track.interp_width(3.0)[0])

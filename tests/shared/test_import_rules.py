@@ -47,15 +47,7 @@ ZENOH_MODULES = re.compile(r"shared/bus/session[^/]*\.py")
 
 #: Violations that need files owned by others, as "importer -> imported" (no line numbers,
 #: so unrelated edits do not break the list). Remove an entry when its follow-up lands.
-KNOWN: frozenset[str] = frozenset(
-    {
-        # CODE_VERSION of the minimum-time lap is not in the planner's __all__: the planner
-        # exports it (and mintime.py imports MinTimeLap, MinTimeSettings, min_time_lap from
-        # services.planner) with the planner's rooms (issue #26).
-        "services/tools/mintime.py -> services.planner.mintime.ocp",
-        "services/tools/mintime.py -> services.planner.mintime.store",
-    }
-)
+KNOWN: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,23 @@
-"""The minimum-time lap with a disk cache: solve once per track, car and settings (I/O shell).
+"""The minimum-time lap as an artefact on disk: made offline by the tools, read by the planner.
 
-``min_time_lap(track, vehicle, settings)`` returns the cached ``MinTimeLap`` when one exists
-for exactly this problem, else solves it (``services.planner.mintime.ocp.solve_min_time``) and
-stores it. The key hashes everything the result depends on: the track's points and widths,
-every vehicle parameter, the settings, ``CODE_VERSION`` and the CasADi version. The cache
-lives in ``<cache>/mintime/<key>.npz`` with ``<cache>`` the compiled-solver cache's base
-folder (``services.planner.mpc.solver.default_cache_dir``: ``$RACESTACK_CACHE``, else
-``$XDG_CACHE_HOME/racestack`` or ``~/.cache/racestack``). Files are written atomically; an
-unreadable or mismatched file counts as a miss. Infeasible problems are not cached.
+A minimum-time lap (``services.planner.mintime.ocp.solve_min_time``: an IPOPT solve of
+seconds to minutes) is an artefact keyed on everything it depends on (``cache_key``): the
+track's points and widths, every vehicle parameter, the settings, ``CODE_VERSION`` and the
+CasADi version. It lives in ``<cache>/mintime/<key>.npz`` with ``<cache>`` the compiled
+solver cache's base folder (``services.planner.mpc.solver.default_cache_dir``:
+``$RACESTACK_CACHE``, else ``$XDG_CACHE_HOME/racestack`` or ``~/.cache/racestack``); the
+file holds the lap (the line, its speed profile, states and inputs) and its figures.
+
+- ``load_min_time_lap`` (the planner core, the planner process): only reads; a missing
+  artefact is ``MinTimeArtefactMissingError``, one line naming the command that makes it
+  (``racestack mintime --for USE --track SPEC [--config FILE]``). It never starts IPOPT.
+- ``make_min_time_lap`` (the tools): reads, or on a miss solves with IPOPT (a progress line
+  first) and writes the artefact.
+- ``ensure_artefacts(method, ...)`` (the tools, before they build planners): makes every
+  lap planner `method` races on (``services.planner.mintime.requests``).
+
+Files are written atomically; an unreadable or mismatched file counts as missing.
+Infeasible problems are not cached.
 """
 
 from __future__ import annotations
@@ -17,14 +27,25 @@ import hashlib
 import json
 import logging
 import os
+import shlex
+import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from services.planner.mintime.ocp import CODE_VERSION, MinTimeLap, MinTimeSettings, solve_min_time
+from services.planner.mintime.ocp import (
+    CODE_VERSION,
+    MinTimeError,
+    MinTimeLap,
+    MinTimeSettings,
+    solve_min_time,
+)
+from services.planner.mintime.requests import laps_of, request_for
 from services.planner.mpc.solver import default_cache_dir
+from shared.config.planner import PlannerSettings
 from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track
 
@@ -32,6 +53,8 @@ log = logging.getLogger(__name__)
 
 #: Sub-folder of the cache base folder.
 CACHE_SUBDIR = "mintime"
+#: Stands for the configuration file in a command line when it is not known.
+CONFIG_PLACEHOLDER = "[--config FILE]"
 
 
 def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings) -> str:
@@ -86,14 +109,147 @@ def load_lap(path: Path, key: str) -> MinTimeLap | None:
         return None
 
 
-def min_time_lap(
+def print_progress(line: str) -> None:
+    """Say `line` on stderr (the default progress of ``make_min_time_lap``)."""
+    print(line, file=sys.stderr, flush=True)
+
+
+def mintime_command(
+    use: str | None,
+    track_spec: str,
+    config: str | None = CONFIG_PLACEHOLDER,
+    settings: MinTimeSettings | None = None,
+    cache_dir: str | Path | None = None,
+) -> str:
+    """The ``racestack mintime`` command line that makes the lap of `use` (one of
+    ``requests.USES``) on `track_spec`.
+
+    Args:
+        use: the lap's use; None: the CLI's own lap with `settings`' top speed, grid and
+            margin (``--v-max``, ``--ds``, ``--margin``).
+        track_spec: what ``--track`` takes (a built-in name, folder or file).
+        config: ``--config`` FILE; None: the built-in configuration (no ``--config``);
+            ``CONFIG_PLACEHOLDER``: not known, written as ``[--config FILE]``.
+        cache_dir: ``--cache`` DIR; None: the default cache (no ``--cache``).
+    """
+    words = ["racestack", "mintime"]
+    if use is not None:
+        words += ["--for", use]
+    words += ["--track", shlex.quote(track_spec)]
+    if use is None and settings is not None:
+        words += [
+            "--v-max", f"{settings.v_max_mps:g}",
+            "--ds", f"{settings.ds_m:g}",
+            "--margin", f"{settings.margin_m:g}",
+        ]
+    if cache_dir is not None:
+        words += ["--cache", shlex.quote(str(cache_dir))]
+    if config == CONFIG_PLACEHOLDER:
+        words.append(CONFIG_PLACEHOLDER)
+    elif config is not None:
+        words += ["--config", shlex.quote(config)]
+    return " ".join(words)
+
+
+class MinTimeArtefactMissingError(MinTimeError):
+    """The minimum-time lap a planner races on is not on disk: one line naming the cache
+    folder and the command that makes it (``command``). The planner never solves it itself.
+
+    Attributes:
+        track_name, track_spec: the track (its name; a spec ``--track`` takes).
+        use: the lap's use (``requests.USES``), None for another lap.
+        path: the artefact's file.
+        command: the ``racestack mintime`` command line that makes it.
+    """
+
+    def __init__(
+        self,
+        track_name: str,
+        track_spec: str,
+        use: str | None,
+        path: Path,
+        *,
+        config: str | None = CONFIG_PLACEHOLDER,
+        settings: MinTimeSettings | None = None,
+        cache_dir: str | Path | None = None,
+    ) -> None:
+        self.track_name = track_name
+        self.track_spec = track_spec
+        self.use = use
+        self.path = path
+        self._settings = settings
+        self._cache_dir = cache_dir
+        self.command = mintime_command(use, track_spec, config, settings, cache_dir)
+        what = f" for {use}" if use is not None else ""
+        super().__init__(
+            track_spec,
+            f"no minimum-time lap{what} of this car on {track_name} (cache {path.parent}): "
+            f"make it with: {self.command}",
+        )
+
+    def __str__(self) -> str:
+        return self.problem
+
+    def for_config(
+        self, config: str | None, track_spec: str | None = None
+    ) -> MinTimeArtefactMissingError:
+        """The same error with the command's ``--config`` set to `config` (None: the
+        built-in configuration, no ``--config``) and, if given, its ``--track`` spec."""
+        return MinTimeArtefactMissingError(
+            self.track_name,
+            track_spec or self.track_spec,
+            self.use,
+            self.path,
+            config=config,
+            settings=self._settings,
+            cache_dir=self._cache_dir,
+        )
+
+
+def load_min_time_lap(
+    track: Track,
+    vehicle: DynamicVehicleParams,
+    settings: MinTimeSettings | None = None,
+    cache_dir: str | Path | None = None,
+    *,
+    use: str | None = None,
+) -> MinTimeLap:
+    """The minimum-time lap of `vehicle` on `track` with `settings` (None: the defaults)
+    read from the cache (`cache_dir`, None: the default base folder); never solves.
+
+    Args:
+        use: the lap's use (``requests.USES``), for the error's command.
+
+    Raises:
+        MinTimeArtefactMissingError: no (readable) artefact for exactly this problem.
+    """
+    cfg = settings or MinTimeSettings()
+    key = cache_key(track, vehicle, cfg)
+    path = cache_file(key, cache_dir)
+    lap = load_lap(path, key)
+    if lap is None:
+        raise MinTimeArtefactMissingError(
+            track.name, track.source, use, path, settings=cfg, cache_dir=cache_dir
+        )
+    return lap
+
+
+def make_min_time_lap(
     track: Track,
     vehicle: DynamicVehicleParams,
     settings: MinTimeSettings | None = None,
     cache_dir: str | Path | None = None,
     use_cache: bool = True,
+    *,
+    use: str | None = None,
+    progress: Callable[[str], None] | None = print_progress,
 ) -> MinTimeLap:
-    """The minimum-time lap from the cache, or solved and then cached (module docstring).
+    """The minimum-time lap from the cache, or solved with IPOPT and then cached (module
+    docstring); `use_cache` False: solved, and not written.
+
+    Args:
+        use: the lap's use (``requests.USES``), named in the progress line.
+        progress: called with one line before a solve (default: stderr; None: quiet).
 
     Raises:
         MinTimeError: no feasible lap (see ``solve_min_time``).
@@ -105,6 +261,12 @@ def min_time_lap(
         lap = load_lap(path, key)
         if lap is not None:
             return lap
+    if progress is not None:
+        what = f" for {use}" if use is not None else ""
+        progress(
+            f"solving the minimum-time lap{what} of this car on {track.name} with IPOPT "
+            f"(once per track, car and settings; cache {path.parent}) ..."
+        )
     lap = solve_min_time(track, vehicle, cfg)
     if use_cache:
         try:
@@ -112,3 +274,37 @@ def min_time_lap(
         except OSError as exc:
             log.warning("could not cache the min-time lap in %s (%s)", path, exc)
     return lap
+
+
+#: ``make_min_time_lap`` under the name the tools have used.
+min_time_lap = make_min_time_lap
+
+
+def ensure_artefacts(
+    method: str | None,
+    track: Track,
+    settings: PlannerSettings,
+    vehicle: DynamicVehicleParams | None = None,
+    *,
+    cache_dir: str | Path | None = None,
+    progress: Callable[[str], None] | None = print_progress,
+) -> list[MinTimeLap]:
+    """Make every minimum-time lap planner `method` (None: ``settings.method``) races on
+    with `settings` for `vehicle` (None: the F1TENTH gym's): nothing for ``cimpcc`` and
+    ``mpcc``, the line for ``cimpcc-line``, the raceline's lap for ``raceline`` with
+    ``line = "min_time"`` (``requests.laps_of``); each read from the cache or solved once.
+    Returns those laps (in ``laps_of``'s order).
+
+    Raises:
+        MinTimeError: a lap has no feasible solution on `track`.
+    """
+    name = method or settings.method
+    laps = []
+    for use in laps_of(name, settings):
+        car, lap_settings = request_for(use, settings, vehicle)
+        laps.append(
+            make_min_time_lap(
+                track, car, lap_settings, cache_dir, use=use, progress=progress
+            )
+        )
+    return laps

@@ -34,14 +34,14 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from services.planner.mintime.ocp import MinTimeSettings
-from services.planner.mintime.store import min_time_lap
+from services.planner.mintime.requests import line_request
+from services.planner.mintime.store import load_min_time_lap
 from services.planner.mpc.model import NU, NX, S, SlipModel, SpeedLoop, U, discretise
 from services.planner.mpc.problem import UA, XA, XA_SPEED, OcpProblem, build_problem
 from services.planner.mpc.solver import SolverHandle, make_solver
 from services.planner.recovery import HandOver, Recovery, RecoveryCommand, StallWatch
 from services.planner.reference import ReferencePath, centreline_path, min_time_path
-from shared.config.methods import MethodSetup, method_setup
+from shared.config.methods import CIMPCC_LINE, MethodSetup, method_setup
 from shared.config.planner import (
     CurvatureSettings,
     MethodWeights,
@@ -91,33 +91,21 @@ def min_time_reference(
 ) -> ReferencePath:
     """The ``cimpcc-line`` reference: the minimum-time line of `vehicle` on `track`.
 
-    The lap (``mintime_store.min_time_lap``: solved once, then read from the cache in
-    `cache_dir`, default the solver cache's) is solved for the car (`vehicle`, default the
-    F1TENTH gym's) with its friction ``mu`` times ``grip_fraction``, its steering within
-    the planner's bounds (``settings.bounds.delta_rad``: a line the planner cannot steer
-    is no reference), top speed ``v_max_mps`` and footprint margin ``line_margin_m`` (all
-    ``settings.cimpcc_line``); then ``reference.min_time_path`` with the speed loop's lead
-    times (default: ``1 / speed_gain_accel_per_s`` and ``1 / speed_gain_brake_per_s`` of
-    the car).
+    The lap (``mintime.requests.line_request``: the car, default the F1TENTH gym's, with
+    its friction ``mu`` times ``grip_fraction``, its steering within the planner's bounds,
+    top speed ``v_max_mps`` and footprint margin ``line_margin_m``, all
+    ``settings.cimpcc_line``) is read from the cache in `cache_dir` (default the solver
+    cache's; ``mintime.store.load_min_time_lap``: never solved here, the tools make it,
+    ``mintime.store.ensure_artefacts``); then ``reference.min_time_path`` with the speed
+    loop's lead times (default: ``1 / speed_gain_accel_per_s`` and ``1 /
+    speed_gain_brake_per_s`` of the car).
 
     Raises:
-        MinTimeError: no minimum-time lap exists on `track` for this car.
+        MinTimeArtefactMissingError: the lap is not in the cache (names the command).
     """
     car = vehicle or F1TENTH_GYM
     line = settings.cimpcc_line
-    lo, hi = settings.bounds.delta_rad
-    update = {
-        "steering_min_rad": max(car.steering_min_rad, lo),
-        "steering_max_rad": min(car.steering_max_rad, hi),
-    }
-    if line.grip_fraction != 1.0:
-        update["mu"] = car.mu * line.grip_fraction
-    lap = min_time_lap(
-        track,
-        car.model_copy(update=update),
-        MinTimeSettings(v_max_mps=line.v_max_mps, margin_m=line.line_margin_m),
-        cache_dir=cache_dir,
-    )
+    lap = load_min_time_lap(track, *line_request(settings, car), cache_dir, use=CIMPCC_LINE)
     accel_lead = line.accel_lead_s
     brake_lead = line.brake_lead_s
     return min_time_path(

@@ -1,6 +1,6 @@
 """The raceline baseline of the paper's Table I (RDM+OTG): a global line, a speed profile,
-a tracker. Pure maths; the only I/O is the minimum-time lap's disk cache, reached through an
-injectable loader (``services.planner.mintime.store.min_time_lap`` by default).
+a tracker. Pure maths; the only I/O is reading the minimum-time lap's artefact, through an
+injectable loader (``services.planner.mintime.store.load_min_time_lap`` by default).
 
 The paper compares CiMPCC with a path-velocity decomposition: a minimum-curvature path
 (RDM, Braghin et al. 2008), a velocity plan (OTG, Werling et al. 2010) and a pursuit
@@ -9,8 +9,9 @@ tracker (Becker et al. 2023). Ours, built once per track (``[planner.raceline] l
 - ``"min_time"`` (default): the **minimum-time lap** of the car (``services.planner.
   mintime``: the car's own single-track model at its friction limits, top speed
   ``v_max_mps``, footprint ``min_time_margin_m`` inside the boundaries, steering within
-  the planner's ``[planner.bounds] delta_rad``): its CoG path, speeds, acceleration demand
-  and steering. Solved once per track, car and settings, then cached.
+  the planner's ``[planner.bounds] delta_rad``; ``mintime.requests.raceline_request``): its
+  CoG path, speeds, acceleration demand and steering. Solved once per track, car and
+  settings by the tools (``mintime.store.ensure_artefacts``), then read from the cache.
 - ``"min_curvature"``: the line of least curvature (``min_curvature_offsets``): the
   centreline resampled every ``ds_m``, each point moved along its left normal by
   ``alpha_i``; minimise the integral of the squared curvature of the moved points,
@@ -53,6 +54,8 @@ import casadi as ca
 import numpy as np
 
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
+from services.planner.mintime.requests import min_time_settings, planning_vehicle
+from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
 from services.planner.mpc.planner import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import HandOver, Recovery, StallWatch
@@ -223,36 +226,9 @@ def speed_profile(
 def default_min_time_loader(
     track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings
 ) -> MinTimeLap:
-    """``services.planner.mintime.store.min_time_lap`` with its default cache (imported
-    here so that this module has no I/O of its own)."""
-    from services.planner.mintime.store import min_time_lap
-
-    return min_time_lap(track, vehicle, settings)
-
-
-def planning_vehicle(
-    vehicle: DynamicVehicleParams, steering_limits_rad: tuple[float, float] | None
-) -> DynamicVehicleParams:
-    """`vehicle` with its steering range cut to `steering_limits_rad` (the planner's
-    bounds): the line is planned with the steering the tracker may command."""
-    if steering_limits_rad is None:
-        return vehicle
-    lo = max(vehicle.steering_min_rad, steering_limits_rad[0])
-    hi = min(vehicle.steering_max_rad, steering_limits_rad[1])
-    if not lo < 0.0 < hi:
-        raise ValueError(f"steering limits {steering_limits_rad} leave no range around 0")
-    if (lo, hi) == (vehicle.steering_min_rad, vehicle.steering_max_rad):
-        return vehicle
-    return DynamicVehicleParams.model_validate(
-        {**vehicle.model_dump(), "steering_min_rad": lo, "steering_max_rad": hi}
-    )
-
-
-def min_time_settings(settings: RacelineSettings) -> MinTimeSettings:
-    """The minimum-time problem of `settings`: top speed, grid, footprint margin."""
-    return MinTimeSettings(
-        v_max_mps=settings.v_max_mps, ds_m=settings.ds_m, margin_m=settings.min_time_margin_m
-    )
+    """``services.planner.mintime.store.load_min_time_lap`` with its default cache: reads
+    the lap the tools made (``ensure_artefacts``), never solves."""
+    return load_min_time_lap(track, vehicle, settings, use=RACELINE)
 
 
 def build_min_curvature_raceline(
@@ -314,6 +290,8 @@ def build_min_time_raceline(
     car = planning_vehicle(vehicle, steering_limits_rad)
     try:
         lap = (loader or default_min_time_loader)(track, car, min_time_settings(settings))
+    except MinTimeArtefactMissingError:
+        raise  # its own line: the command that makes the lap
     except MinTimeError as exc:
         raise RacelineError(track.source, f"no minimum-time line: {exc.problem}") from None
     xy = np.column_stack([lap.x_m, lap.y_m])
@@ -351,8 +329,8 @@ def build_raceline(
         vehicle: the car the line is planned for.
         steering_limits_rad: the planner's steering bounds (the minimum-time line is
             planned within them); None: the car's own.
-        loader: where the minimum-time lap comes from (default: the disk cache, solving
-            on a miss).
+        loader: where the minimum-time lap comes from (default: read from the disk cache,
+            never solved; missing: ``MinTimeArtefactMissingError``).
     """
     if settings.line == "min_curvature":
         return build_min_curvature_raceline(track, settings, vehicle)

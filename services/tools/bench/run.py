@@ -33,12 +33,13 @@ import numpy as np
 
 from services.planner import (
     MinTimeError,
-    MinTimeSettings,
     Planner,
     PlannerLike,
     PlannerPool,
     RacelinePlanner,
-    min_time_lap,
+    ensure_artefacts,
+    limit_request,
+    make_min_time_lap,
 )
 from services.tools.bench.closed_loop import LoopOptions, run_method
 from services.tools.bench.estimation import ESTIMATORS
@@ -247,11 +248,11 @@ def min_time_reference(
     `track` at the planners' top speed (cached per track and car), or None (with a line
     on stderr) when the track allows none. Its line for the figures is appended to
     `lines` (when given)."""
-    settings = MinTimeSettings(v_max_mps=cfg.planner.cimpcc.v_up_mps[0])
     print("minimum-time reference lap (solved once per track and car, then cached) ...",
           file=sys.stderr)
     try:
-        lap = min_time_lap(track, cfg.simulator.vehicle, settings)
+        lap = make_min_time_lap(track, *limit_request(cfg.planner, cfg.simulator.vehicle),
+                                use="limit", progress=None)
     except MinTimeError as exc:
         print(f"no minimum-time reference: {exc}", file=sys.stderr)
         return None
@@ -295,6 +296,8 @@ def run_bench(
     if reference:
         ref_doc = min_time_reference(track, cfg, ref_lines)
         timings["min-time reference"] = time.perf_counter() - t_start
+    for name in methods:  # the minimum-time laps the planners read (made once, cached)
+        ensure_artefacts(name, track, cfg.planner, cfg.simulator.vehicle)
     pool = PlannerPool(track, cfg.simulator.vehicle)
     # built first: a track that allows no line is an error before anything races
     planners = {name: pool.planner(cfg.planner, name, cfg.curvature) for name in methods}

@@ -14,6 +14,11 @@ stderr, nothing started, no empty run folder left) when the run folder cannot be
 the hub's port is already in use, or the services' ``[bus] connect`` endpoints are not
 where this hub listens: ``up`` is the hub, so a hub nobody can reach is a configuration
 error to fix, not something to wait for.
+
+Before the planner process starts, ``up`` makes the minimum-time lap its method races on
+(``services.planner.ensure_artefacts``: ``cimpcc-line``, a ``min_time`` raceline; a line
+on stdout while IPOPT solves, once per track, car and settings): the planner process only
+reads it. A lap with no solution on the track is one line and exit code 2 too.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from services.planner import MinTimeError, ensure_artefacts
 from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus, BusOpenError
 from shared.config import RacestackConfig
@@ -109,6 +115,13 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
     if problem:
         remove_empty_dirs(created)
         return _cannot_start(f"{problem}; give --run-dir a folder you can write")
+    if "planner" in opts.services:  # the planner process only reads its minimum-time lap
+        try:
+            ensure_artefacts(cfg.planner.method, track, cfg.planner, cfg.simulator.vehicle,
+                             progress=_say)
+        except MinTimeError as exc:
+            remove_empty_dirs(created)
+            return _cannot_start(str(exc))
     try:
         bus = Launcher.open_bus(cfg.bus)
     except BusOpenError as exc:
@@ -128,6 +141,11 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
             flush=True,
         )
         return _race(cfg, opts, bus, track, run_dir, stop_requested)
+
+
+def _say(line: str) -> None:
+    """A progress line of ``up`` on stdout (before the stack starts)."""
+    print(f"racestack up: {line}", flush=True)
 
 
 def _cannot_start(line: str) -> int:

@@ -29,6 +29,7 @@ from services.planner import (
     PlannerPool,
     Recovery,
     SolveResult,
+    ensure_artefacts,
 )
 from services.tools.bench import LoopOptions, run_method
 from services.tools.tune.search import (
@@ -221,7 +222,9 @@ class Evaluator:
 
     def planner_for(self, cfg: RacestackConfig) -> PlannerLike:
         """A planner of the method with `cfg`'s settings (MPC problems of the same
-        structure built once, ``PlannerPool``)."""
+        structure built once, ``PlannerPool``; the minimum-time lap it races on made first,
+        once per line setting)."""
+        ensure_artefacts(self.space.method, self.track, cfg.planner, cfg.simulator.vehicle)
         return self._pool.planner(cfg.planner, self.space.method, cfg.curvature)
 
     def run_seed(self, planner: PlannerLike, cfg: RacestackConfig, seed: int

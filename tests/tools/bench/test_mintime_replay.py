@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from services.planner.mintime.ocp import MinTimeSettings
-from services.planner.mintime.store import min_time_lap
+from services.planner.mintime.store import make_min_time_lap
 from services.tools.bench.replay import ReplayOptions, replay_min_time
 from shared.config import load_config
 from shared.track import load_track
@@ -17,7 +17,7 @@ from shared.track import load_track
 def test_replayed_min_time_lap_on_map416(shared_tracks: Path) -> None:
     track = load_track(shared_tracks / "map416")
     cfg = load_config(None)
-    lap = min_time_lap(track, cfg.simulator.vehicle, MinTimeSettings(v_max_mps=4.18))
+    lap = make_min_time_lap(track, cfg.simulator.vehicle, MinTimeSettings(v_max_mps=4.18))
     # an independent solve with the simulator's older linear_saturated tyres: 7.171 s
     assert 7.0 < lap.lap_time_s < 7.25
     assert lap.min_clearance_m > 0.015

@@ -1,0 +1,150 @@
+"""Which minimum-time lap each use races on: the car and the settings, built in one place.
+
+A minimum-time lap (``services.planner.mintime.ocp``) is fixed by the track, the car it is
+solved for and its ``MinTimeSettings``; the store keys its artefact on exactly these
+(``services.planner.mintime.store.cache_key``). Three uses race on one (``USES``):
+
+- ``limit``: the car's limit, the bench's reference and ``racestack mintime``'s default
+  (``limit_request``): the car as configured, top speed ``[planner.cimpcc] v_up_mps[0]``,
+  the default grid and footprint margin;
+- ``cimpcc-line``: the line CiMPCC contours (``line_request``): the car's friction ``mu``
+  times ``[planner.cimpcc_line] grip_fraction``, its steering within the planner's
+  ``[planner.bounds] delta_rad`` (a line the planner cannot steer is no reference), top
+  speed ``v_max_mps`` and margin ``line_margin_m``;
+- ``raceline``: the raceline baseline's line with ``[planner.raceline] line = "min_time"``
+  (``raceline_request``): the car's steering within the planner's bounds, top speed
+  ``v_max_mps``, grid ``ds_m`` and margin ``min_time_margin_m`` of ``[planner.raceline]``.
+
+``laps_of(method, settings)`` says which of them a planner method needs. Pure functions:
+no I/O, no solve.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from services.planner.mintime.ocp import MinTimeSettings
+from shared.config.methods import METHODS, method_spec
+from shared.config.planner import PlannerSettings, RacelineSettings
+from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
+
+#: The car's limit (the bench's reference, ``racestack mintime``'s default).
+LIMIT = "limit"
+#: Every use of a minimum-time lap (``racestack mintime --for``): the limit and each planner
+#: method of the registry that races on a line of its own (named by the method).
+USES = (
+    LIMIT,
+    *(n for n, s in METHODS.items() if s.in_planner and s.reference != "centreline"),
+)
+
+
+class LapRequest(NamedTuple):
+    """One minimum-time lap to solve or load: the car it is solved for and its settings
+    (unpacks as ``car, settings``)."""
+
+    car: DynamicVehicleParams
+    settings: MinTimeSettings
+
+
+def planning_vehicle(
+    vehicle: DynamicVehicleParams, steering_limits_rad: tuple[float, float] | None
+) -> DynamicVehicleParams:
+    """`vehicle` with its steering range cut to `steering_limits_rad` [rad] (the planner's
+    bounds): the line is planned with the steering the tracker may command. Returns
+    `vehicle` itself when nothing is cut (or the limits are None).
+
+    Raises:
+        ValueError: the limits leave no steering range around 0.
+    """
+    if steering_limits_rad is None:
+        return vehicle
+    lo = max(vehicle.steering_min_rad, steering_limits_rad[0])
+    hi = min(vehicle.steering_max_rad, steering_limits_rad[1])
+    if not lo < 0.0 < hi:
+        raise ValueError(f"steering limits {steering_limits_rad} leave no range around 0")
+    if (lo, hi) == (vehicle.steering_min_rad, vehicle.steering_max_rad):
+        return vehicle
+    return DynamicVehicleParams.model_validate(
+        {**vehicle.model_dump(), "steering_min_rad": lo, "steering_max_rad": hi}
+    )
+
+
+def min_time_settings(settings: RacelineSettings) -> MinTimeSettings:
+    """The raceline's minimum-time problem: top speed [m/s], grid [m], footprint margin [m]
+    of `settings` (``[planner.raceline]``)."""
+    return MinTimeSettings(
+        v_max_mps=settings.v_max_mps, ds_m=settings.ds_m, margin_m=settings.min_time_margin_m
+    )
+
+
+def line_request(
+    settings: PlannerSettings, car: DynamicVehicleParams | None = None
+) -> LapRequest:
+    """The lap ``cimpcc-line`` contours (module docstring) for `car` (None: the F1TENTH
+    gym's, the simulator's default car) with the planner `settings`."""
+    car = car or F1TENTH_GYM
+    line = settings.cimpcc_line
+    lo, hi = settings.bounds.delta_rad
+    update = {
+        "steering_min_rad": max(car.steering_min_rad, lo),
+        "steering_max_rad": min(car.steering_max_rad, hi),
+    }
+    if line.grip_fraction != 1.0:
+        update["mu"] = car.mu * line.grip_fraction
+    return LapRequest(
+        car.model_copy(update=update),
+        MinTimeSettings(v_max_mps=line.v_max_mps, margin_m=line.line_margin_m),
+    )
+
+
+def raceline_request(
+    settings: PlannerSettings, car: DynamicVehicleParams | None = None
+) -> LapRequest:
+    """The lap the raceline baseline tracks with ``line = "min_time"`` (module docstring)
+    for `car` (None: the F1TENTH gym's) with the planner `settings`."""
+    bounds = settings.bounds.delta_rad
+    return LapRequest(
+        planning_vehicle(car or F1TENTH_GYM, (bounds[0], bounds[1])),
+        min_time_settings(settings.raceline),
+    )
+
+
+def limit_request(
+    settings: PlannerSettings, car: DynamicVehicleParams | None = None
+) -> LapRequest:
+    """The car's limit (module docstring): `car` (None: the F1TENTH gym's) as it is, top
+    speed ``settings.cimpcc.v_up_mps[0]`` [m/s], the default grid and margin."""
+    return LapRequest(
+        car or F1TENTH_GYM, MinTimeSettings(v_max_mps=settings.cimpcc.v_up_mps[0])
+    )
+
+
+def request_for(
+    use: str, settings: PlannerSettings, car: DynamicVehicleParams | None = None
+) -> LapRequest:
+    """The lap of `use` (one of ``USES``) with the planner `settings` for `car`.
+
+    Raises:
+        ValueError: `use` is not one of ``USES``.
+    """
+    if use == LIMIT:
+        return limit_request(settings, car)
+    spec = METHODS.get(use)
+    if spec is not None and spec.reference == "min_time_line":
+        return line_request(settings, car)
+    if spec is not None and spec.reference == "planned_line":
+        return raceline_request(settings, car)
+    raise ValueError(f"unknown minimum-time lap {use!r}; choose one of {', '.join(USES)}")
+
+
+def laps_of(method: str, settings: PlannerSettings) -> tuple[str, ...]:
+    """The minimum-time laps (``USES``) planner `method` races on with `settings`: the line
+    for ``cimpcc-line``, the raceline's for ``raceline`` with ``line = "min_time"``, none
+    for the others (``cimpcc``, ``mpcc``, a minimum-curvature raceline, ...)."""
+    spec = method_spec(method)
+    name = spec.base or spec.name
+    if spec.reference == "min_time_line":
+        return (name,)
+    if spec.reference == "planned_line" and settings.raceline.line == "min_time":
+        return (name,)
+    return ()
