@@ -18,7 +18,15 @@ services.planner``). What tools may use (``docs/architecture.md``, rule 3) is ``
   ``request_for``, ``laps_of``, ``MIN_TIME_USES``); and its tracker (``Tracker``, ...);
 """
 
-from services.planner.interface import PlannerLike
+from services.planner.interface import (
+    BRAKING,
+    FALLBACK,
+    RECOVERING,
+    SOLVED,
+    DriveCommand,
+    PlannerLike,
+    SolveResult,
+)
 from services.planner.mintime.model import DELTA
 from services.planner.mintime.ocp import CODE_VERSION as MIN_TIME_CODE_VERSION
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
@@ -40,15 +48,7 @@ from services.planner.mintime.store import (
     min_time_lap,
 )
 from services.planner.mpc.model import discretise, kinematic_bicycle, step_numpy
-from services.planner.mpc.planner import (
-    BRAKING,
-    FALLBACK,
-    RECOVERING,
-    SOLVED,
-    DriveCommand,
-    Planner,
-    SolveResult,
-)
+from services.planner.mpc.planner import Planner
 from services.planner.raceline.planner import RacelinePlanner
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import Recovery

@@ -8,13 +8,70 @@ type against it instead of spelling out the union (``make_planner`` returns one)
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-from services.planner.mpc.planner import DriveCommand, SolveResult
+import numpy as np
+
 from services.planner.recovery import Recovery
 from shared.config.planner import PlannerSettings
 from shared.curvature import CurvatureProfile
+from shared.messages.vocab import PlanStatusName
 from shared.track import Track
+
+#: Status of a result: a fresh solution, the shifted previous plan, or a braking command;
+#: RECOVERING: the car is lost (spun or far off the track), the recovery rule drives.
+SOLVED, FALLBACK, BRAKING, RECOVERING = (
+    PlanStatusName.SOLVED,
+    PlanStatusName.FALLBACK,
+    PlanStatusName.BRAKING,
+    PlanStatusName.RECOVERING,
+)
+
+
+@dataclass(frozen=True)
+class DriveCommand:
+    """What the planner commands: speed [m/s] and steering angle [rad]."""
+
+    speed_mps: float
+    steering_rad: float
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    """The record of one planner tick.
+
+    Attributes:
+        command: the drive command to apply now.
+        states: (N+1, 4) predicted model states [X, Y, phi, s] (s: progress along the
+            planner's reference path, the centreline or the line; may exceed its length).
+        inputs: (N, 3) planned inputs [v_l, delta, v_p].
+        status: SOLVED, FALLBACK or BRAKING.
+        solver_status: the back-end's return status text.
+        iterations: solver iterations.
+        solve_time_s: wall time of the solver call [s].
+        beta: (N,) beta used at each stage.
+        s_m: the car's progress [m] along the track's centreline in [0, lap length).
+        e_con_m: the car's contour error [m] (positive right of the centreline).
+        consecutive_failures: failed solves in a row, this one included.
+        method: "cimpcc", "mpcc" or "cimpcc-line".
+        speed_limited: the car was outside the track, so the speed command was capped at
+            ``off_track_speed_mps`` (a safety rule outside the optimisation).
+    """
+
+    command: DriveCommand
+    states: np.ndarray
+    inputs: np.ndarray
+    status: str
+    solver_status: str
+    iterations: int
+    solve_time_s: float
+    beta: np.ndarray
+    s_m: float
+    e_con_m: float
+    consecutive_failures: int
+    method: str
+    speed_limited: bool = False
 
 
 @runtime_checkable

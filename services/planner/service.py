@@ -29,9 +29,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from services.planner.interface import PlannerLike
+from services.planner.interface import DriveCommand, PlannerLike, SolveResult
 from services.planner.mintime.store import MinTimeArtefactMissingError
-from services.planner.mpc.planner import DriveCommand, SolveResult
 from services.planner.registry import make_planner
 from shared.bus import Bus, ChannelSubscription
 from shared.config import RacestackConfig

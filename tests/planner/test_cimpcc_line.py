@@ -33,7 +33,6 @@ from services.planner.mpc.planner import (
 )
 from services.planner.mpc.problem import NV, NXA, XA_SPEED, ParamLayout, build_problem
 from services.planner.mpc.solver import cache_key, solver_options
-from services.planner.raceline.tracker import steady_state_steering
 from services.planner.reference import CENTRELINE, MIN_TIME_LINE, ReferencePath
 from services.planner.registry import make_planner
 from services.planner.service import plan_message
@@ -49,6 +48,7 @@ from shared.config.planner import (
 )
 from shared.config.vehicle import F1TENTH_GYM
 from shared.track import Track
+from shared.vehicle.steady_state import steady_state_steering
 
 UNCOMPILED = PlannerSettings(method=CIMPCC_LINE, solver=SolverSettings(compile=False))
 #: Centreline radius [m] of the test circle: tight enough that grip, not the 4.18 m/s cap,

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from services.planner.mpc.planner import DriveCommand, SolveResult
+from services.planner.interface import DriveCommand, SolveResult
 from services.planner.service import BrakeDeadline, PlannerShell
 from shared.bus.fake import FakeBus
 from shared.config.planner import PlannerSettings

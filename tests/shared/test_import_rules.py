@@ -173,6 +173,8 @@ def _check(
             yield Violation(path, line, module, "a process service imports a tool")
         elif target != own:
             yield Violation(path, line, module, "a process service imports another service")
+        else:
+            yield from _check_room(path, line, head)
         return
     if kind != "tool":
         return  # an unknown unit is reported once by rule 6
@@ -193,6 +195,38 @@ def _check(
     elif mine is not None and theirs <= mine:
         rule = f"tool {own} imports tool {target}, not below it in TOOL_ORDER (one-way chain)"
         yield Violation(path, line, module, rule)
+
+
+#: The planner's rooms (``services/planner/<room>/``) and the rooms each may import: the
+#: minimum-time OCP is the offline optimiser (it imports no other room); the MPC methods and
+#: the raceline read its artefact, never each other. Modules at the planner's top level
+#: (interface, recovery, reference, cache, registry, service) compose the rooms.
+PLANNER_ROOMS: dict[str, frozenset[str]] = {
+    "mintime": frozenset(),
+    "mpc": frozenset({"mintime"}),
+    "raceline": frozenset({"mintime"}),
+}
+#: Top-level planner modules the rooms may use (the planner-wide types and helpers).
+PLANNER_COMMON = frozenset({"interface", "recovery", "reference", "cache"})
+
+
+def _check_room(path: str, line: int, head: list[str]) -> Iterator[Violation]:
+    """Rule 7: a planner room imports only the rooms ``PLANNER_ROOMS`` allows it and the
+    planner's common modules."""
+    parts = path.split("/")
+    if parts[:2] != ["services", "planner"] or len(parts) < 4 or head[:2] != [
+        "services", "planner"
+    ] or len(head) < 3:
+        return
+    room = parts[2]
+    if room not in PLANNER_ROOMS:
+        return
+    target = head[2]
+    if target == room or target in PLANNER_ROOMS[room]:
+        return
+    if target in PLANNER_COMMON and not (room == "mintime" and target != "cache"):
+        return
+    yield Violation(path, line, ".".join(head), f"planner room {room} imports {target}")
 
 
 def source_files() -> list[tuple[Path, str]]:
@@ -325,3 +359,16 @@ def test_process_services_meet_only_on_the_bus() -> None:
     """No known exception for rule 2: a process service never imports another or a tool."""
     rules = ("a process service imports another service", "a process service imports a tool")
     assert [str(v) for v in violations() if v.rule in rules] == []
+
+
+def test_planner_rooms_keep_to_themselves() -> None:
+    """Rule 7 on crafted sources: the offline OCP imports no online room; the MPC and the
+    raceline read the OCP's artefact but not each other."""
+    files = [
+        (Path("services/planner/mintime/x.py"), "from services.planner.mpc import planner\n"),
+        (Path("services/planner/mpc/x.py"), "import services.planner.raceline.tracker\n"),
+        (Path("services/planner/raceline/x.py"), "from services.planner.mintime.store import f\n"),
+        (Path("services/planner/mpc/y.py"), "from services.planner.interface import SOLVED\n"),
+    ]
+    rules = sorted(v.rule for v in violations(files))
+    assert rules == ["planner room mintime imports mpc", "planner room mpc imports raceline"]

@@ -4,7 +4,7 @@ A minimum-time lap (``services.planner.mintime.ocp.solve_min_time``: an IPOPT so
 seconds to minutes) is an artefact keyed on everything it depends on (``cache_key``): the
 track's points and widths, every vehicle parameter, the settings, ``CODE_VERSION`` and the
 CasADi version. It lives in ``<cache>/mintime/<key>.npz`` with ``<cache>`` the compiled
-solver cache's base folder (``services.planner.mpc.solver.default_cache_dir``:
+solver cache's base folder (``services.planner.cache.default_cache_dir``:
 ``$RACESTACK_CACHE``, else ``$XDG_CACHE_HOME/racestack`` or ``~/.cache/racestack``); the
 file holds the lap (the line, its speed profile, states and inputs) and its figures.
 
@@ -36,6 +36,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from services.planner.cache import default_cache_dir
 from services.planner.mintime.ocp import (
     CODE_VERSION,
     MinTimeError,
@@ -44,7 +45,6 @@ from services.planner.mintime.ocp import (
     solve_min_time,
 )
 from services.planner.mintime.requests import laps_of, request_for
-from services.planner.mpc.solver import default_cache_dir
 from shared.config.planner import PlannerSettings
 from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track

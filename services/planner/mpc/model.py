@@ -50,6 +50,7 @@ import casadi as ca
 import numpy as np
 
 from shared.config.vehicle import DynamicVehicleParams
+from shared.vehicle.steady_state import steady_state_steering
 
 #: Standard gravity [m/s^2].
 GRAVITY_MPS2 = 9.81
@@ -116,7 +117,7 @@ class SlipModel:
 
         With `near_limit` (linear tyres only), also ``K_2`` and ``c_2``: the least-squares
         fit of ``K_us + K_2 a_y^2`` and ``c_r + c_2 a_y^2`` to the car's steady state with
-        load transfer and drag (``tracker.steady_state_steering``: ``K = (tan(delta) /
+        load transfer and drag (``shared.vehicle.steady_state``: ``K = (tan(delta) /
         kappa - L) / v^2``, ``c = alpha_r / a_y``) at ``NEAR_LIMIT_SPEEDS_MPS`` and
         ``a_y`` up to ``NEAR_LIMIT_GRIP`` of ``mu g``. At 9 m/s^2 and 4 m/s the small-angle
         model alone predicts 13 % more curvature than the car turns, the fit (its ``a_y``
@@ -133,8 +134,6 @@ class SlipModel:
         base = cls(vehicle.wheelbase_m, (1.0 / front - 1.0 / rear) / g, 1.0 / (g * rear))
         if not near_limit or vehicle.tyre_model == "pacejka":
             return base
-        from services.planner.raceline.tracker import steady_state_steering  # numpy only
-
         v = np.repeat(NEAR_LIMIT_SPEEDS_MPS, NEAR_LIMIT_SAMPLES)
         a_y = np.tile(
             np.linspace(0.5, NEAR_LIMIT_GRIP * vehicle.mu * g, NEAR_LIMIT_SAMPLES),

@@ -34,6 +34,14 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from services.planner.interface import (
+    BRAKING,
+    FALLBACK,
+    RECOVERING,
+    SOLVED,
+    DriveCommand,
+    SolveResult,
+)
 from services.planner.mintime.requests import line_request
 from services.planner.mintime.store import load_min_time_lap
 from services.planner.mpc.model import NU, NX, S, SlipModel, SpeedLoop, U, discretise
@@ -50,17 +58,8 @@ from shared.config.planner import (
 )
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
 from shared.curvature import CurvatureProfile, track_profile
-from shared.messages.vocab import PlanStatusName
 from shared.track import Track
 
-#: Status of a result: a fresh solution, the shifted previous plan, or a braking command;
-#: RECOVERING: the car is lost (spun or far off the track), the recovery rule drives.
-SOLVED, FALLBACK, BRAKING, RECOVERING = (
-    PlanStatusName.SOLVED,
-    PlanStatusName.FALLBACK,
-    PlanStatusName.BRAKING,
-    PlanStatusName.RECOVERING,
-)
 #: Half-width of the arc-length window searched around the previous projection when the
 #: nearby search (``Track.project_near``, +-1 m) finds its minimum at its edge [m]
 #: (0.5 s at 10 m/s).
@@ -161,51 +160,6 @@ class _Prepared:
     beta: np.ndarray | None
     v_ref: np.ndarray | None = None
     drag: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class DriveCommand:
-    """What the planner commands: speed [m/s] and steering angle [rad]."""
-
-    speed_mps: float
-    steering_rad: float
-
-
-@dataclass(frozen=True)
-class SolveResult:
-    """The record of one planner tick.
-
-    Attributes:
-        command: the drive command to apply now.
-        states: (N+1, 4) predicted model states [X, Y, phi, s] (s: progress along the
-            planner's reference path, the centreline or the line; may exceed its length).
-        inputs: (N, 3) planned inputs [v_l, delta, v_p].
-        status: SOLVED, FALLBACK or BRAKING.
-        solver_status: the back-end's return status text.
-        iterations: solver iterations.
-        solve_time_s: wall time of the solver call [s].
-        beta: (N,) beta used at each stage.
-        s_m: the car's progress [m] along the track's centreline in [0, lap length).
-        e_con_m: the car's contour error [m] (positive right of the centreline).
-        consecutive_failures: failed solves in a row, this one included.
-        method: "cimpcc", "mpcc" or "cimpcc-line".
-        speed_limited: the car was outside the track, so the speed command was capped at
-            ``off_track_speed_mps`` (a safety rule outside the optimisation).
-    """
-
-    command: DriveCommand
-    states: np.ndarray
-    inputs: np.ndarray
-    status: str
-    solver_status: str
-    iterations: int
-    solve_time_s: float
-    beta: np.ndarray
-    s_m: float
-    e_con_m: float
-    consecutive_failures: int
-    method: str
-    speed_limited: bool = False
 
 
 class Planner:

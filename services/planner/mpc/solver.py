@@ -20,6 +20,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from services.planner.cache import default_cache_dir
 from services.planner.mpc.problem import OcpProblem
 from shared.config.planner import SolverSettings
 
@@ -43,15 +44,6 @@ class SolverHandle:
     compiled: bool
     library: str | None
     cache_hit: bool
-
-
-def default_cache_dir() -> Path:
-    """``$RACESTACK_CACHE`` or ``$XDG_CACHE_HOME/racestack`` or ``~/.cache/racestack``."""
-    env = os.environ.get("RACESTACK_CACHE")
-    if env:
-        return Path(env)
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return Path(xdg) / "racestack" if xdg else Path.home() / ".cache" / "racestack"
 
 
 def solver_options(problem: OcpProblem, settings: SolverSettings) -> dict:

@@ -53,10 +53,10 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from services.planner.interface import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mintime.requests import min_time_settings, planning_vehicle
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
-from services.planner.mpc.planner import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import HandOver, Recovery, StallWatch
 from shared.config.methods import RACELINE

@@ -69,15 +69,14 @@ import numpy as np
 
 from services.planner.mintime.model import DELTA
 from services.planner.mintime.ocp import MinTimeLap
-from shared.config.vehicle import GRAVITY_MPS2, DynamicVehicleParams
+from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track
+from shared.vehicle.steady_state import steady_state_steering
 
 #: Path curvature [1/m] above which a bend's outside is fully defined (tanh scale).
 KAPPA_OUTWARD_1PM = 0.1
 #: Spacing of the samples of a hold window [s].
 WINDOW_SAMPLE_S = 0.01
-#: Fixed-point iterations of the steady-state steering (loads <-> acceleration demand).
-STEADY_STATE_ITERATIONS = 4
 
 
 @dataclass(frozen=True, eq=False)
@@ -224,39 +223,6 @@ class ReferenceLap:
             t_s=np.concatenate([[0.0], np.cumsum(dt)[:-1]]),
             lap_time_s=float(dt.sum()),
         )
-
-
-def steady_state_steering(
-    kappa_1pm: np.ndarray,
-    v_mps: np.ndarray,
-    v_dot_mps2: np.ndarray,
-    vehicle: DynamicVehicleParams,
-    iterations: int = STEADY_STATE_ITERATIONS,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(delta, beta, a) of the car on a path of curvature `kappa_1pm` at `v_mps`, speeding
-    up at `v_dot_mps2`: the linear single-track model in steady state (module docstring),
-    by fixed-point iteration (the loads depend on ``a``, ``a`` on the drag).
-
-    Returns:
-        steering [rad], slip angle [rad], acceleration demand [m/s^2], each like `v_mps`.
-    """
-    g, h = GRAVITY_MPS2, vehicle.cog_height_m
-    lf, lr, wb = vehicle.lf_m, vehicle.lr_m, vehicle.wheelbase_m
-    c_f = vehicle.mu * vehicle.cornering_stiffness_front_per_rad
-    c_r = vehicle.mu * vehicle.cornering_stiffness_rear_per_rad
-    a_y = v_mps**2 * kappa_1pm
-    accel = np.asarray(v_dot_mps2, dtype=float)
-    for _ in range(iterations):
-        # axle loads per unit mass and the slips that carry a_y (moment balance: l_r / L
-        # of it on the front axle, l_f / L on the rear)
-        fz_f = np.maximum(g * lr - accel * h, 1e-3 * g * lr) / wb
-        fz_r = np.maximum(g * lf + accel * h, 1e-3 * g * lf) / wb
-        alpha_f = a_y * lr / wb / (c_f * fz_f)
-        alpha_r = a_y * lf / wb / (c_r * fz_r)
-        delta = np.arctan(wb * kappa_1pm) + alpha_f - alpha_r
-        beta = np.arctan(lr * kappa_1pm) - alpha_r
-        accel = v_dot_mps2 * np.cos(beta) - a_y * np.sin(beta) + a_y * lr / wb * np.tan(delta)
-    return delta, beta, accel
 
 
 @dataclass(frozen=True)
