@@ -32,7 +32,7 @@ for (yaw, r), plus q_p dt on x, y, q_yaw dt on yaw, q_b dt on b and q_vy dt on v
 Measurements ``z = H s + noise(R)`` with the Joseph-form update
 ``K = P H^T S^-1``, ``S = H P H^T + R``, ``P = (I - K H) P (I - K H)^T + K R K^T``:
 
-- pose [x, y, yaw] (H selects X, Y, YAW; the yaw innovation wrapped into [-pi, pi]);
+- pose [x, y, yaw] (H selects X, Y, YAW; the yaw innovation wrapped into [-pi, pi));
   its squared Mahalanobis distance ``d2 = nu^T S^-1 nu`` is what the gate tests;
 - wheel speed v; odometry yaw rate r; IMU yaw rate ``r + b``.
 """
@@ -45,9 +45,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from shared.angles import wrap_angle
 from shared.config.localization import EkfNoise
-
-TWO_PI = 2.0 * math.pi
 
 
 class Ekf(IntEnum):
@@ -76,11 +75,6 @@ _H_GYRO[0, Ekf.R] = _H_GYRO[0, Ekf.BIAS] = 1.0
 _EYE = np.eye(N)
 
 
-def wrap(angle_rad: float) -> float:
-    """`angle_rad` wrapped into [-pi, pi]."""
-    return math.remainder(angle_rad, TWO_PI)
-
-
 @dataclass(frozen=True, slots=True)
 class Belief:
     """Mean (7,) and covariance (7, 7) of the state (index with ``Ekf``), at `t_s` [s]."""
@@ -104,7 +98,7 @@ def initial_belief(
     """A belief at a pose: covariance from `noise`'s init_* stds (the pose's own 3x3
     `pose_cov`, if given, for x, y, yaw)."""
     s = np.array(
-        [x_m, y_m, wrap(yaw_rad), speed_mps, yaw_rate_radps, bias_radps, 0.0], dtype=float
+        [x_m, y_m, wrap_angle(yaw_rad), speed_mps, yaw_rate_radps, bias_radps, 0.0], dtype=float
     )
     P = np.diag(
         [
@@ -133,7 +127,7 @@ def predict(b: Belief, t_s: float, noise: EkfNoise) -> Belief:
     c, s_ = math.cos(yaw_m), math.sin(yaw_m)
     dx = (v * c - vy * s_) * dt
     dy = (v * s_ + vy * c) * dt
-    s = np.array([x + dx, y + dy, wrap(yaw + r * dt), v, r, bias, vy])
+    s = np.array([x + dx, y + dy, wrap_angle(yaw + r * dt), v, r, bias, vy])
     F = _EYE.copy()
     F[Ekf.X, Ekf.YAW] = -dy
     F[Ekf.X, Ekf.V] = c * dt
@@ -163,7 +157,7 @@ def _update(b: Belief, H: np.ndarray, nu: np.ndarray, R: np.ndarray) -> Belief:
     S = H @ b.P @ H.T + R
     K = np.linalg.solve(S, H @ b.P).T  # P H^T S^-1 (S and P symmetric)
     s = b.s + K @ nu
-    s[Ekf.YAW] = wrap(s[Ekf.YAW])
+    s[Ekf.YAW] = wrap_angle(s[Ekf.YAW])
     A = _EYE - K @ H
     P = A @ b.P @ A.T + K @ R @ K.T
     return Belief(b.t_s, s, 0.5 * (P + P.T))
@@ -172,7 +166,7 @@ def _update(b: Belief, H: np.ndarray, nu: np.ndarray, R: np.ndarray) -> Belief:
 def pose_innovation(b: Belief, z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, float]:
     """Innovation (3,) of a pose `z` = [x, y, yaw] with covariance `R` (3, 3), and its
     squared Mahalanobis distance ``nu^T (H P H^T + R)^-1 nu``."""
-    nu = np.array([z[0] - b.s[Ekf.X], z[1] - b.s[Ekf.Y], wrap(z[2] - b.s[Ekf.YAW])])
+    nu = np.array([z[0] - b.s[Ekf.X], z[1] - b.s[Ekf.Y], wrap_angle(z[2] - b.s[Ekf.YAW])])
     S = b.P[np.ix_(_POSE_ROWS, _POSE_ROWS)] + R
     return nu, float(nu @ np.linalg.solve(S, nu))
 
