@@ -43,16 +43,17 @@ from services.planner import (
 )
 from services.tools.bench.closed_loop import LoopOptions, run_method
 from services.tools.bench.estimation import ESTIMATORS
-from services.tools.bench.figures import write_figures
-from services.tools.bench.table import format_paper_table, format_table
 from services.tools.tune import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.planner import MethodWeights
 from shared.evaluation import (
     MethodRun,
     ReferenceLine,
+    format_paper_table,
+    format_table,
     paper_table_applies,
     results_document,
+    write_figures,
     write_results,
 )
 from shared.outdir import writable_dir_problem
