@@ -11,8 +11,8 @@ where it returns ``+pi`` for ``pi``, ``3 pi``, ... (its range is ``[-pi, pi]``).
 addition and the subtraction round, so it differs from ``wrap_angle`` by an ulp or so for
 most inputs (``0.1`` comes back as ``0.10000000000000009``) and gives ``+pi`` for an angle
 within half an ulp below ``-pi``. It is kept, beside the exact one, for the two callers whose
-numeric results must stay bit-identical to what they always were: the simulator's pose
-sensor (its measured yaw) and the particle filter's poses. New code uses ``wrap_angle``.
+results must not move by that rounding: the simulator's pose sensor (its measured yaw) and
+the particle filter's poses. New code uses ``wrap_angle``.
 
 There is no CasADi version: the symbolic problems keep their angles continuous (unwrapped).
 """

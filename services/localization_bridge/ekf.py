@@ -6,11 +6,10 @@ State ``s`` (7,), indexed by ``Ekf`` (rear axle, map frame)::
 
 ``v`` is the longitudinal speed, ``r`` the yaw rate, ``b`` the gyro's yaw-rate bias, ``vy``
 the rear axle's lateral velocity (body frame, left +). ``vy`` earns its place because a
-racing car's rear axle slides: in a turn at 3 m/s it moves 1-3 degrees off its heading, a
-unicycle model then pulls the yaw towards the velocity (``benchmarks/localization_ekf.py``,
-a raceline race on map416 with 2 cm / 2 degree poses at 30 Hz, 30 ms late: position RMS
-2.4 cm and yaw 0.4 degrees with ``vy``; 9.3 cm and 1.9 degrees without it, 4.0 cm and 0.5
-degrees without it and the position noise ``position_psd`` raised 100-fold for the slide).
+racing car's rear axle slides: in a turn it moves off its heading, and a unicycle model then
+pulls the yaw towards the velocity; raising the position noise ``position_psd`` for the
+slide instead costs accuracy (``benchmarks/localization_ekf.py`` compares the three; the
+figures are in the README).
 The bias earns its place because the IMU is what carries the yaw between poses (and
 through a pose drop-out): a MEMS gyro's bias of 0.01-0.03 rad/s turns into 0.3-1 degree of
 heading error in 0.5 s, and the pose stream makes it observable (``z_imu = r + b`` against

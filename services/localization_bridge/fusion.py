@@ -15,8 +15,8 @@ rate), ``dt = now - pose.stamp_s`` clipped to ``[0, max_prediction_s]``. ``sourc
 stays the pose's capture stamp, so consumers still see how old the information is.
 The predicted position is kept inside the contract's position limits (a pose at the edge
 of them may not be pushed beyond) and the yaw is wrapped into [-pi, pi)
-(``shared.angles.wrap_angle``).
-An EKF fusing all three comes with the localization issue.
+(``shared.angles.wrap_angle``). This is ``[localization] filter = "passthrough"``; the
+default EKF (``ekf.py``, ``estimator.py``) fuses all three.
 """
 
 from __future__ import annotations

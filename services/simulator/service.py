@@ -84,7 +84,7 @@ OVERRUN_S = 0.02
 #: Further behind real time than this [s], the simulation skips ahead instead of catching
 #: up: the clocks are re-anchored so that its stamps are fresh again (the car's motion
 #: stays integrated step by step; the simulation then runs slower than real time). Without
-#: it a loaded machine kept the simulator behind for good, its stamps too old for the
+#: it a loaded machine would keep the simulator behind for good, its stamps too old for the
 #: bridge (0.5 s history) and its state too old for the planner (100 ms: it brakes).
 MAX_LAG_S = 0.05
 #: Key under which faults of the car's state are counted in ``bus.faults`` (not a bus key).
