@@ -28,6 +28,7 @@ from services.localization_bridge import FusedEstimator
 from services.planner import RacelinePlanner, ensure_artefacts
 from services.simulator import SensorSuite, StepResult, rear_axle
 from services.tools.bench import LoopOptions, SimulatorPlant, race
+from shared.angles import wrap_angle
 from shared.config import load_config
 from shared.config.methods import RACELINE
 from shared.config.simulator import PoseSensorSettings
@@ -79,14 +80,14 @@ def errors(steps: list[StepResult], sim_settings, loc, lr_m: float) -> dict[str,
                 last = p
                 cx, cy, cyaw = truth_at.get(round(p.stamp_s, 6), (tx, ty, tyaw))
                 n_xy.append(math.hypot(p.x_m - cx, p.y_m - cy))
-                n_yaw.append(math.remainder(p.yaw_rad - cyaw, 2 * math.pi))
+                n_yaw.append(wrap_angle(p.yaw_rad - cyaw))
             if last is None or now < 1.0:
                 continue
             e = est.estimate(now)
             e_xy.append(math.hypot(e.x_m - tx, e.y_m - ty))
-            e_yaw.append(math.remainder(e.yaw_rad - tyaw, 2 * math.pi))
+            e_yaw.append(wrap_angle(e.yaw_rad - tyaw))
             r_xy.append(math.hypot(last.x_m - tx, last.y_m - ty))
-            r_yaw.append(math.remainder(last.yaw_rad - tyaw, 2 * math.pi))
+            r_yaw.append(wrap_angle(last.yaw_rad - tyaw))
         out[name] = (rms(e_xy), math.degrees(rms(e_yaw)), dict(est.counts))
         raw = (rms(r_xy), math.degrees(rms(r_yaw)), {})
         noise = (rms(n_xy), math.degrees(rms(n_yaw)), {})

@@ -34,6 +34,7 @@ import numpy as np
 
 from services.localization_bridge.particle_filter import ParticleFilter
 from services.simulator import Command, SensorSuite, Simulator, rear_axle
+from shared.angles import wrap_angle
 from shared.config.particle_filter import ParticleFilterSettings
 from shared.config.simulator import LidarSettings, SimulatorSettings
 from shared.messages import Scan
@@ -199,7 +200,7 @@ def drive(
             log.t_s.append(res.t_s)
             log.err_pos_m.append(math.hypot(est.x_m - xt, est.y_m - yt))
             log.err_yaw_rad.append(
-                abs(math.remainder(est.yaw_rad - yawt, math.tau))
+                abs(wrap_angle(est.yaw_rad - yawt))
             )
             log.lost.append(est.lost)
             log.converged.append(est.converged)

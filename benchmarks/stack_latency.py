@@ -33,17 +33,74 @@ from pathlib import Path
 import numpy as np
 
 from services.tools.launcher.supervisor import Supervisor, service_argv
-from shared.bus import Bus
+from shared.bus import Bus, TypedPublisher
 from shared.config import load_config
 from shared.messages import DriveCmd, Odom, Plan, Pose, State
 from shared.net import free_loopback_port
-from shared.track import load_track
+from shared.track import Track, load_track
 
 SERVICES = ("localization_bridge", "planner")
 
 
 def _stats(x: np.ndarray) -> dict[str, float]:
     return {"median": float(np.median(x)), "p99": float(np.percentile(x, 99))}
+
+
+def publish_along_track(
+    pose_pub: TypedPublisher[Pose],
+    odom_pub: TypedPublisher[Odom],
+    track: Track,
+    published: dict[float, float],
+    seconds: float,
+    rate_hz: float,
+    odom_hz: float,
+    speed_mps: float,
+) -> None:
+    """For `seconds` [s], poses along the centreline at `rate_hz` [Hz] (moving at
+    `speed_mps` [m/s]) and wheel odometry at `odom_hz` [Hz], each on its own schedule;
+    ``published[stamp] = publish time`` of every pose (wall clock [s])."""
+    s = 0.0
+    now = time.monotonic()
+    next_pose, next_odom = now, now + 0.5 / odom_hz
+    t_end = now + seconds
+    while (now := time.monotonic()) < t_end:
+        if now >= next_odom:
+            odom_pub.put(Odom(stamp_s=time.time(), speed_mps=speed_mps, steering_rad=0.0,
+                              yaw_rate_radps=None))
+            next_odom += 1.0 / odom_hz
+        if now >= next_pose:
+            s = (s + speed_mps / rate_hz) % track.length_m
+            (x, y) = track.point_at(s)
+            yaw = float(track.heading_at(s))
+            stamp = time.time()
+            pose_pub.put(Pose(stamp_s=stamp, x_m=float(x), y_m=float(y), yaw_rad=yaw,
+                              cov=None))
+            published[stamp] = time.time()
+            next_pose += 1.0 / rate_hz
+        time.sleep(max(0.0, min(next_pose, next_odom) - time.monotonic()))
+
+
+def latency_record(
+    published: dict[float, float],
+    plans: dict[float, tuple[float, float]],
+    arrivals: dict[float, float],
+    states: dict[float, float],
+    counts: dict[str, int],
+) -> dict:
+    """One run's record: every command matched to the pose it answers; arrays [ms] of
+    issued, delivered, solve and bridge (NaN where `states` has no entry) and the counts."""
+    rows = []
+    for cmd_stamp, (src, solve_ms) in plans.items():
+        if src in published and cmd_stamp in arrivals:
+            p = published[src]
+            rows.append((cmd_stamp - p, arrivals[cmd_stamp] - p, solve_ms / 1e3,
+                         states.get(src, np.nan) - p))
+    r = np.array(rows, dtype=float).reshape(-1, 4) * 1e3
+    return {
+        "poses": len(published), "plans": len(plans), "commands": len(arrivals),
+        "matched": len(r), **counts,
+        "issued": r[:, 0], "delivered": r[:, 1], "solve": r[:, 2], "bridge": r[:, 3],
+    }
 
 
 def run(
@@ -97,44 +154,13 @@ def run(
             raise RuntimeError(f"services did not start; logs in {tmp / 'logs'}")
         pose_pub.wait_matching(5.0)
         time.sleep(1.0)  # let the planner settle (first solves, gossip links)
-        s = 0.0
-        now = time.monotonic()
-        next_pose, next_odom = now, now + 0.5 / odom_hz
-        t_end = now + seconds
-        while True:
-            now = time.monotonic()
-            if now >= t_end:
-                break
-            if now >= next_odom:
-                odom_pub.put(Odom(stamp_s=time.time(), speed_mps=speed_mps, steering_rad=0.0,
-                                  yaw_rate_radps=None))
-                next_odom += 1.0 / odom_hz
-            if now >= next_pose:
-                s = (s + speed_mps / rate_hz) % track.length_m
-                (x, y) = track.point_at(s)
-                yaw = float(track.heading_at(s))
-                stamp = time.time()
-                pose_pub.put(Pose(stamp_s=stamp, x_m=float(x), y_m=float(y), yaw_rad=yaw,
-                                  cov=None))
-                published[stamp] = time.time()
-                next_pose += 1.0 / rate_hz
-            time.sleep(max(0.0, min(next_pose, next_odom) - time.monotonic()))
+        publish_along_track(pose_pub, odom_pub, track, published, seconds, rate_hz, odom_hz,
+                            speed_mps)
         time.sleep(0.3)
         counts = {"drops": bus.drops.total, "cmd_gaps": cmds.seq_gaps}
     receiver.join(2.0)
-    rows = []
     with lock:
-        for cmd_stamp, (src, solve_ms) in plans.items():
-            if src in published and cmd_stamp in arrivals:
-                p = published[src]
-                rows.append((cmd_stamp - p, arrivals[cmd_stamp] - p, solve_ms / 1e3,
-                             states.get(src, np.nan) - p))
-    r = np.array(rows, dtype=float).reshape(-1, 4) * 1e3
-    return {
-        "poses": len(published), "plans": len(plans), "commands": len(arrivals),
-        "matched": len(r), **counts,
-        "issued": r[:, 0], "delivered": r[:, 1], "solve": r[:, 2], "bridge": r[:, 3],
-    }
+        return latency_record(published, plans, arrivals, states, counts)
 
 
 def summarise(runs: list[dict], breakdown: bool) -> list[str]:

@@ -26,7 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.stack_latency import SERVICES, _stats, summarise
+from benchmarks.stack_latency import (
+    SERVICES,
+    _stats,
+    latency_record,
+    publish_along_track,
+    summarise,
+)
 from benchmarks.stack_latency import run as run_plain
 from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
@@ -81,39 +87,13 @@ def run_mtls(seconds: float, rate_hz: float, odom_hz: float, speed_mps: float) -
                 raise RuntimeError(f"services did not start; logs in {tmp / 'logs'}")
             pose_pub.wait_matching(5.0)
             time.sleep(1.0)
-            s = 0.0
-            now = time.monotonic()
-            next_pose, next_odom = now, now + 0.5 / odom_hz
-            t_end = now + seconds
-            while (now := time.monotonic()) < t_end:
-                if now >= next_odom:
-                    odom_pub.put(Odom(stamp_s=time.time(), speed_mps=speed_mps,
-                                      steering_rad=0.0, yaw_rate_radps=None))
-                    next_odom += 1.0 / odom_hz
-                if now >= next_pose:
-                    s = (s + speed_mps / rate_hz) % track.length_m
-                    (x, y) = track.point_at(s)
-                    stamp = time.time()
-                    pose_pub.put(Pose(stamp_s=stamp, x_m=float(x), y_m=float(y),
-                                      yaw_rad=float(track.heading_at(s)), cov=None))
-                    published[stamp] = time.time()
-                    next_pose += 1.0 / rate_hz
-                time.sleep(max(0.0, min(next_pose, next_odom) - time.monotonic()))
+            publish_along_track(pose_pub, odom_pub, track, published, seconds, rate_hz,
+                                odom_hz, speed_mps)
             time.sleep(0.3)
             counts = {"drops": bus.drops.total, "cmd_gaps": cmds.seq_gaps}
         receiver.join(2.0)
-    rows = []
     with lock:
-        for cmd_stamp, (src, solve_ms) in plans.items():
-            if src in published and cmd_stamp in arrivals:
-                p = published[src]
-                rows.append((cmd_stamp - p, arrivals[cmd_stamp] - p, solve_ms / 1e3, np.nan))
-    r = np.array(rows, dtype=float).reshape(-1, 4) * 1e3
-    return {
-        "poses": len(published), "plans": len(plans), "commands": len(arrivals),
-        "matched": len(r), **counts,
-        "issued": r[:, 0], "delivered": r[:, 1], "solve": r[:, 2], "bridge": r[:, 3],
-    }
+        return latency_record(published, plans, arrivals, {}, counts)
 
 
 def table(results: dict[str, list[dict]]) -> list[str]:

@@ -5,7 +5,7 @@ loads and validates the one configuration, installs SIGINT/SIGTERM handlers that
 event, and calls ``body(config, args, stop)``. A configuration or track error is one clear
 line and exit code 2; the body must return when ``stop`` is set (closing its Zenoh session).
 
-A bad start is one line on stderr and exit code 2, never a traceback (issue #16): a usage
+A bad start is one line on stderr and exit code 2, never a traceback: a usage
 error (``OneLineArgumentParser``), an ``--out`` folder that cannot be written (checked
 before anything starts; a folder made for the check is removed again), a session Zenoh
 refuses to open (``BusOpenError``: e.g. the hub port already in use), an optional extra

@@ -6,11 +6,10 @@ State ``s`` (7,), indexed by ``Ekf`` (rear axle, map frame)::
 
 ``v`` is the longitudinal speed, ``r`` the yaw rate, ``b`` the gyro's yaw-rate bias, ``vy``
 the rear axle's lateral velocity (body frame, left +). ``vy`` earns its place because a
-racing car's rear axle slides: in a turn at 3 m/s it moves 1-3 degrees off its heading, a
-unicycle model then pulls the yaw towards the velocity (``benchmarks/localization_ekf.py``,
-a raceline race on map416 with 2 cm / 2 degree poses at 30 Hz, 30 ms late: position RMS
-2.4 cm and yaw 0.4 degrees with ``vy``; 9.3 cm and 1.9 degrees without it, 4.0 cm and 0.5
-degrees without it and the position noise ``position_psd`` raised 100-fold for the slide).
+racing car's rear axle slides: in a turn it moves off its heading, and a unicycle model then
+pulls the yaw towards the velocity; raising the position noise ``position_psd`` for the
+slide instead costs accuracy (``benchmarks/localization_ekf.py`` compares the three; the
+figures are in the README).
 The bias earns its place because the IMU is what carries the yaw between poses (and
 through a pose drop-out): a MEMS gyro's bias of 0.01-0.03 rad/s turns into 0.3-1 degree of
 heading error in 0.5 s, and the pose stream makes it observable (``z_imu = r + b`` against
@@ -32,7 +31,7 @@ for (yaw, r), plus q_p dt on x, y, q_yaw dt on yaw, q_b dt on b and q_vy dt on v
 Measurements ``z = H s + noise(R)`` with the Joseph-form update
 ``K = P H^T S^-1``, ``S = H P H^T + R``, ``P = (I - K H) P (I - K H)^T + K R K^T``:
 
-- pose [x, y, yaw] (H selects X, Y, YAW; the yaw innovation wrapped into [-pi, pi]);
+- pose [x, y, yaw] (H selects X, Y, YAW; the yaw innovation wrapped into [-pi, pi));
   its squared Mahalanobis distance ``d2 = nu^T S^-1 nu`` is what the gate tests;
 - wheel speed v; odometry yaw rate r; IMU yaw rate ``r + b``.
 """
@@ -45,9 +44,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from shared.angles import wrap_angle
 from shared.config.localization import EkfNoise
-
-TWO_PI = 2.0 * math.pi
 
 
 class Ekf(IntEnum):
@@ -76,11 +74,6 @@ _H_GYRO[0, Ekf.R] = _H_GYRO[0, Ekf.BIAS] = 1.0
 _EYE = np.eye(N)
 
 
-def wrap(angle_rad: float) -> float:
-    """`angle_rad` wrapped into [-pi, pi]."""
-    return math.remainder(angle_rad, TWO_PI)
-
-
 @dataclass(frozen=True, slots=True)
 class Belief:
     """Mean (7,) and covariance (7, 7) of the state (index with ``Ekf``), at `t_s` [s]."""
@@ -104,7 +97,7 @@ def initial_belief(
     """A belief at a pose: covariance from `noise`'s init_* stds (the pose's own 3x3
     `pose_cov`, if given, for x, y, yaw)."""
     s = np.array(
-        [x_m, y_m, wrap(yaw_rad), speed_mps, yaw_rate_radps, bias_radps, 0.0], dtype=float
+        [x_m, y_m, wrap_angle(yaw_rad), speed_mps, yaw_rate_radps, bias_radps, 0.0], dtype=float
     )
     P = np.diag(
         [
@@ -133,7 +126,7 @@ def predict(b: Belief, t_s: float, noise: EkfNoise) -> Belief:
     c, s_ = math.cos(yaw_m), math.sin(yaw_m)
     dx = (v * c - vy * s_) * dt
     dy = (v * s_ + vy * c) * dt
-    s = np.array([x + dx, y + dy, wrap(yaw + r * dt), v, r, bias, vy])
+    s = np.array([x + dx, y + dy, wrap_angle(yaw + r * dt), v, r, bias, vy])
     F = _EYE.copy()
     F[Ekf.X, Ekf.YAW] = -dy
     F[Ekf.X, Ekf.V] = c * dt
@@ -163,7 +156,7 @@ def _update(b: Belief, H: np.ndarray, nu: np.ndarray, R: np.ndarray) -> Belief:
     S = H @ b.P @ H.T + R
     K = np.linalg.solve(S, H @ b.P).T  # P H^T S^-1 (S and P symmetric)
     s = b.s + K @ nu
-    s[Ekf.YAW] = wrap(s[Ekf.YAW])
+    s[Ekf.YAW] = wrap_angle(s[Ekf.YAW])
     A = _EYE - K @ H
     P = A @ b.P @ A.T + K @ R @ K.T
     return Belief(b.t_s, s, 0.5 * (P + P.T))
@@ -172,7 +165,7 @@ def _update(b: Belief, H: np.ndarray, nu: np.ndarray, R: np.ndarray) -> Belief:
 def pose_innovation(b: Belief, z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, float]:
     """Innovation (3,) of a pose `z` = [x, y, yaw] with covariance `R` (3, 3), and its
     squared Mahalanobis distance ``nu^T (H P H^T + R)^-1 nu``."""
-    nu = np.array([z[0] - b.s[Ekf.X], z[1] - b.s[Ekf.Y], wrap(z[2] - b.s[Ekf.YAW])])
+    nu = np.array([z[0] - b.s[Ekf.X], z[1] - b.s[Ekf.Y], wrap_angle(z[2] - b.s[Ekf.YAW])])
     S = b.P[np.ix_(_POSE_ROWS, _POSE_ROWS)] + R
     return nu, float(nu @ np.linalg.solve(S, nu))
 

@@ -45,8 +45,8 @@ from services.localization_bridge.ekf import (
     update_pose,
     update_speed,
     update_yaw_rate,
-    wrap,
 )
+from shared.angles import wrap_angle
 from shared.config.localization import LocalizationSettings
 
 
@@ -177,7 +177,7 @@ class FusedEstimator:
             return Verdict.STALE
         t = self._stamp(t_s, now_s)
         R = pose_covariance(cov, self.noise)
-        z = np.array([x_m, y_m, wrap(yaw_rad)])
+        z = np.array([x_m, y_m, wrap_angle(yaw_rad)])
         if self.base is None:
             self._restart(t, z, R)
             self.counts["pose_initialised"] += 1
@@ -341,7 +341,7 @@ class FusedEstimator:
         agrees = (
             prev is not None
             and math.hypot(z[0] - prev[0], z[1] - prev[1]) <= st.reinit_agree_m
-            and abs(wrap(z[2] - prev[2])) <= st.reinit_agree_rad
+            and abs(wrap_angle(z[2] - prev[2])) <= st.reinit_agree_rad
         )
         self._gated_run = self._gated_run + 1 if agrees else 1
         self._last_gated = z

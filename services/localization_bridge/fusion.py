@@ -14,8 +14,9 @@ predicted forward to the bridge's clock with the kinematic unicycle
 rate), ``dt = now - pose.stamp_s`` clipped to ``[0, max_prediction_s]``. ``source_stamp_s``
 stays the pose's capture stamp, so consumers still see how old the information is.
 The predicted position is kept inside the contract's position limits (a pose at the edge
-of them may not be pushed beyond) and the yaw is wrapped into [-pi, pi].
-An EKF fusing all three comes with the localization issue.
+of them may not be pushed beyond) and the yaw is wrapped into [-pi, pi)
+(``shared.angles.wrap_angle``). This is ``[localization] filter = "passthrough"``; the
+default EKF (``ekf.py``, ``estimator.py``) fuses all three.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from shared.angles import wrap_angle
 from shared.config.localization import LocalizationSettings
 from shared.messages import Imu, Odom, Pose, State
 from shared.messages.records import MAX_POS_M
@@ -76,7 +78,7 @@ class StateAssembler:
         yaw_mid = pose.yaw_rad + 0.5 * yaw_rate * dt
         x = min(max(pose.x_m + speed * math.cos(yaw_mid) * dt, -MAX_POS_M), MAX_POS_M)
         y = min(max(pose.y_m + speed * math.sin(yaw_mid) * dt, -MAX_POS_M), MAX_POS_M)
-        yaw = math.remainder(pose.yaw_rad + yaw_rate * dt, 2 * math.pi)
+        yaw = wrap_angle(pose.yaw_rad + yaw_rate * dt)
         return State(
             stamp_s=stamp_s,
             x_m=x,

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.localization_bridge.poses import PoseIndex, wrap
+from services.localization_bridge.poses import PoseIndex
+from shared.angles import wrap_angle_shifted
 
 
 @dataclass(frozen=True)
@@ -63,4 +64,4 @@ def propagate(
     c, s = np.cos(mid), np.sin(mid)
     poses[:, PoseIndex.X] += ds * c - dl * s
     poses[:, PoseIndex.Y] += ds * s + dl * c
-    poses[:, PoseIndex.YAW] = wrap(yaw + dpsi)
+    poses[:, PoseIndex.YAW] = wrap_angle_shifted(yaw + dpsi)

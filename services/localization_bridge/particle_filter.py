@@ -35,8 +35,9 @@ import numpy as np
 
 from services.localization_bridge.likelihood_field import LikelihoodField, wall_distance_m
 from services.localization_bridge.motion_model import MotionNoise, propagate
-from services.localization_bridge.poses import PoseIndex, wrap
+from services.localization_bridge.poses import PoseIndex
 from services.localization_bridge.resampling import effective_sample_size, low_variance_indices
+from shared.angles import wrap_angle_shifted
 from shared.config.particle_filter import ParticleFilterSettings
 from shared.messages import Scan
 from shared.track.occupancy import OccupancyGrid
@@ -163,7 +164,7 @@ class ParticleFilter:
         p = np.empty((n, 3))
         p[:, PoseIndex.X] = float(x_m) + sxy * z[:, 0]
         p[:, PoseIndex.Y] = float(y_m) + sxy * z[:, 1]
-        p[:, PoseIndex.YAW] = wrap(float(yaw_rad) + syaw * z[:, 2])
+        p[:, PoseIndex.YAW] = wrap_angle_shifted(float(yaw_rad) + syaw * z[:, 2])
         self._reset(p, global_pending=False)
         self._std_xy = sxy
         self._converged = sxy < st.converged_std_xy_m and syaw < st.converged_std_yaw_rad
@@ -351,12 +352,15 @@ class ParticleFilter:
         y = float(np.dot(w, p[:, PoseIndex.Y]))
         yaw_p = p[:, PoseIndex.YAW]
         yaw = math.atan2(float(np.dot(w, np.sin(yaw_p))), float(np.dot(w, np.cos(yaw_p))))
-        d = np.stack([p[:, PoseIndex.X] - x, p[:, PoseIndex.Y] - y, wrap(yaw_p - yaw)], axis=1)
+        d = np.stack(
+            [p[:, PoseIndex.X] - x, p[:, PoseIndex.Y] - y, wrap_angle_shifted(yaw_p - yaw)],
+            axis=1,
+        )
         cov = (d * w[:, None]).T @ d
         return PfEstimate(
             x_m=x,
             y_m=y,
-            yaw_rad=float(wrap(yaw)),
+            yaw_rad=float(wrap_angle_shifted(yaw)),
             cov=cov,
             n_eff=effective_sample_size(w),
             converged=False,

@@ -1,10 +1,9 @@
-"""Particle poses: the column names of an (N, 3) pose array and angle wrapping."""
+"""Particle poses: the column names of an (N, 3) pose array (angles are wrapped with
+``shared.angles.wrap_angle_shifted``)."""
 
 from __future__ import annotations
 
 from enum import IntEnum
-
-import numpy as np
 
 
 class PoseIndex(IntEnum):
@@ -13,8 +12,3 @@ class PoseIndex(IntEnum):
     X = 0
     Y = 1
     YAW = 2
-
-
-def wrap(angle_rad: np.ndarray | float) -> np.ndarray:
-    """Angles [rad] wrapped into [-pi, pi)."""
-    return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi

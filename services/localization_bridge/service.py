@@ -17,7 +17,7 @@ predicted to the wall clock every period. One lock guards the core. The ``State`
   ``degraded_after_s``) and the filter's rejections (future / stale stamps, gated poses,
   dropped scans) are said on ``events/log`` (rate-limited, with counts).
 
-With ``filter = "passthrough"`` the newest pose is predicted to now by the old unicycle
+With ``filter = "passthrough"`` the newest pose is predicted to now by a unicycle
 (``fusion.StateAssembler``), at the same fixed rate. A State of its own that fails
 validation is not sent: it is counted in ``bus.faults`` and reported on ``events/log``."""
 

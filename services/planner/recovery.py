@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.angles import wrap_angle
 from shared.config.planner import RecoverySettings
 from shared.track import Track
 
@@ -122,7 +123,7 @@ class Recovery:
         w_r, w_l = (float(v) for v in self.track.interp_width(s_m))
         outside = max(e_con_m - w_r, -e_con_m - w_l)  # > 0 outside the boundaries [m]
         heading = float(self.track.heading_at(s_m))
-        heading_err = abs(math.remainder(yaw_rad - heading, math.tau))
+        heading_err = abs(wrap_angle(yaw_rad - heading))
         if not self.active:
             if outside > cfg.enter_outside_m:
                 self._enter()
@@ -142,7 +143,7 @@ class Recovery:
             reason = "returning to the track"
         # guidance field: head along the track, turned towards the centreline by the offset
         wanted = heading + math.atan(GUIDANCE_GAIN_PER_M * e_con_m)  # e > 0: right of it
-        err = math.remainder(wanted - yaw_rad, math.tau)
+        err = wrap_angle(wanted - yaw_rad)
         lim = self.steering_limit_rad
         steer = min(max(STEER_GAIN * err, -lim), lim)
         return RecoveryCommand(cfg.speed_mps, steer, reason)

@@ -33,7 +33,6 @@ from services.simulator.state import (
     StateIndex,
     VehicleState,
     rear_axle,
-    wrap_angle,
 )
 from services.simulator.vehicle import Simulator, StepResult
 
@@ -67,5 +66,4 @@ __all__ = [
     "rk4_step",
     "speed_control",
     "steering_control",
-    "wrap_angle",
 ]

@@ -1,7 +1,7 @@
 """The simulator's output within the message contract: wrapped angles, state limits.
 
 Pure functions of the car's state (no transport, no clock): the service wraps every angle it
-publishes (``wrap_pi``) and resets the car when its state leaves the contract
+publishes (``shared.angles.wrap_angle``) and resets the car when its state leaves the contract
 (``state_fault``), so nothing it publishes is ever refused by the records' validation.
 """
 
@@ -16,11 +16,6 @@ from shared.messages.records import (
     MAX_STEER_RAD,
     MAX_YAW_RATE_RADPS,
 )
-
-
-def wrap_pi(a: float) -> float:
-    """Angle `a` [rad] wrapped into [-pi, pi] (the contract's range of wrapped angles)."""
-    return math.remainder(a, math.tau)
 
 
 def state_fault(st: VehicleState) -> tuple[str, str] | None:

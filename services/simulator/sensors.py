@@ -20,8 +20,9 @@ import numpy as np
 
 from services.simulator.actuators import TIME_EPS_S
 from services.simulator.lidar import LidarScanner
-from services.simulator.state import rear_axle, wrap_angle
+from services.simulator.state import rear_axle
 from services.simulator.vehicle import StepResult
+from shared.angles import wrap_angle_shifted
 from shared.config.simulator import (
     ImuSettings,
     LidarSettings,
@@ -139,7 +140,9 @@ class PoseSensor:
                 y += float(ny)
             if st.yaw_noise_std_rad > 0.0:
                 yaw += float(self.rng.normal(0.0, st.yaw_noise_std_rad))
-            self._pending.append(PoseMeasurement(t, t + st.latency_s, x, y, wrap_angle(yaw)))
+            self._pending.append(
+                PoseMeasurement(t, t + st.latency_s, x, y, wrap_angle_shifted(yaw))
+            )
         out = []
         while self._pending and self._pending[0].release_s <= t + TIME_EPS_S:
             out.append(self._pending.popleft())

@@ -49,8 +49,9 @@ import numpy as np
 from services.simulator import LapEvent as TimerEvent
 from services.simulator import LapTimer, SensorSuite, Simulator, StepResult
 from services.simulator.laps import centreline_pose
-from services.simulator.limits import state_fault, wrap_pi
+from services.simulator.limits import state_fault
 from services.simulator.vesc_actuation import VescActuation
+from shared.angles import wrap_angle
 from shared.bus import Bus, LatestSlot
 from shared.config import RacestackConfig
 from shared.keys import DRIVE_CMD, EVENTS_LOG, IMU, LAP, ODOM, POSE, SCAN, SIM_CONTROL, SIM_TRUTH
@@ -83,7 +84,7 @@ OVERRUN_S = 0.02
 #: Further behind real time than this [s], the simulation skips ahead instead of catching
 #: up: the clocks are re-anchored so that its stamps are fresh again (the car's motion
 #: stays integrated step by step; the simulation then runs slower than real time). Without
-#: it a loaded machine kept the simulator behind for good, its stamps too old for the
+#: it a loaded machine would keep the simulator behind for good, its stamps too old for the
 #: bridge (0.5 s history) and its state too old for the planner (100 ms: it brakes).
 MAX_LAG_S = 0.05
 #: Key under which faults of the car's state are counted in ``bus.faults`` (not a bus key).
@@ -261,7 +262,7 @@ class SimulatorService(Service):
     def publish(self, res: StepResult) -> None:
         """Sensors, truth and lap events of one step.
 
-        Angles are wrapped into [-pi, pi]; every record goes through ``try_put``, so one that
+        Angles are wrapped into [-pi, pi); every record goes through ``try_put``, so one that
         fails validation is counted in ``bus.faults`` and skipped, never raised.
         """
         readings = self.sensors.update(res)
@@ -272,7 +273,7 @@ class SimulatorService(Service):
                 stamp_s=self.stamp(m.stamp_s),
                 x_m=m.x_m,
                 y_m=m.y_m,
-                yaw_rad=wrap_pi(m.yaw_rad),
+                yaw_rad=wrap_angle(m.yaw_rad),
                 cov=None,
             )
         for m in readings.imu if not self.vesc_imu else ():  # else the vesc_driver's
@@ -324,10 +325,10 @@ class SimulatorService(Service):
                 stamp_s=self.stamp(res.t_s),
                 x_m=st.x_m,
                 y_m=st.y_m,
-                yaw_rad=wrap_pi(st.yaw_rad),
+                yaw_rad=wrap_angle(st.yaw_rad),
                 speed_mps=st.v_mps,
                 yaw_rate_radps=st.yaw_rate_radps,
-                slip_rad=wrap_pi(slip),
+                slip_rad=wrap_angle(slip),
                 steering_rad=st.delta_rad,
                 s_m=self.timer.s_m,
                 e_con_m=self.timer.e_con_m,

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
 
+from shared.angles import wrap_angle
+
 
 def rear_axle(x_m: float, y_m: float, yaw_rad: float, lr_m: float) -> tuple[float, float, float]:
     """Rear-axle pose (x [m], y [m], yaw [rad]) of a car whose CoG is at (x, y), lr behind it."""
@@ -54,11 +56,6 @@ if tuple(i.name for i in _ORDERED) != STATE_ORDER or [int(i) for i in _ORDERED] 
 
 #: A state as a plain tuple of 7 floats in ``StateIndex`` order (the integrator's hot path).
 StateTuple = tuple[float, float, float, float, float, float, float]
-
-
-def wrap_angle(a: float) -> float:
-    """Angle wrapped into [-pi, pi) [rad]."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class Pose2D(NamedTuple):

@@ -28,6 +28,7 @@ from services.simulator.state import (
     StateTuple,
     VehicleState,
 )
+from shared.angles import wrap_angle
 from shared.config.simulator import SimulatorSettings
 
 # plain-int copies of the state indices for the hot path
@@ -275,7 +276,7 @@ class Simulator:
         ):  # inputs are sanitised, so this is a bug: refuse to carry NaN on
             raise FloatingPointError(f"non-finite state after a step from {s_old}: {s_new}")
         if beta > _HALF_PI or beta < -_HALF_PI:
-            beta = math.remainder(beta, math.tau)  # into [-pi, pi]
+            beta = wrap_angle(beta)  # into [-pi, pi)
             if beta > _HALF_PI:
                 beta, v = beta - math.pi, -v
             elif beta < -_HALF_PI:

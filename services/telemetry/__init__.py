@@ -6,7 +6,7 @@
 - ``blueprint``: the default viewer layout shipped with the recordings.
 - ``recording``: one run on disk (folder, ``.rrd``, live stream, stats).
 - ``service``: the Zenoh shell (``python -m services.telemetry``).
-- ``rrd_files``: the files of a recording (segments ``telemetry.0000.rrd``, ... or an old
+- ``rrd_files``: the files of a recording (segments ``telemetry.0000.rrd``, ... or a
   single ``telemetry.rrd``) and reading one by streaming, also when cut off by a crash.
 
 ``racestack report`` (``services/tools/report.py``) reads a recording back.

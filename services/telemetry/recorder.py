@@ -51,22 +51,9 @@ import numpy as np
 import rerun as rr
 
 from services.telemetry import colors
+from shared import keys
 from shared.config.telemetry import TelemetrySettings
 from shared.curvature import CurvatureProfile
-from shared.keys import (
-    DRIVE_CMD,
-    EVENTS_LOG,
-    IMU,
-    LAP,
-    ODOM,
-    PLAN,
-    POSE,
-    SCAN,
-    SIM_CONTROL,
-    SIM_TRUTH,
-    STATE,
-    VESC_STATE,
-)
 from shared.messages import (
     DriveCmd,
     HorizonCol,
@@ -117,7 +104,7 @@ _VESC_FIELDS = tuple(
     if f.name not in ("status", "stamp_s", "seq")
 )
 #: Keys whose silence is reported as stale input (once seen).
-WATCHED_SUFFIXES = (STATE, POSE, ODOM, PLAN, DRIVE_CMD)
+WATCHED_SUFFIXES = (keys.STATE, keys.POSE, keys.ODOM, keys.PLAN, keys.DRIVE_CMD)
 
 
 def flat(suffix: str) -> str:
@@ -233,18 +220,18 @@ class Recorder:
         self.counts: dict[str, int] = {}  #: records handled per key suffix
         self.errors = 0  #: records whose logging raised (counted, never fatal)
         self._handlers: dict[str, Callable[[Any, str, float, float], None]] = {
-            POSE: self._pose,
-            IMU: self._imu,
-            ODOM: self._odom,
-            SCAN: self._scan,
-            STATE: self._state,
-            DRIVE_CMD: self._cmd,
-            PLAN: self._plan,
-            LAP: self._lap_event,
-            VESC_STATE: self._vesc,
-            SIM_TRUTH: self._truth,
-            EVENTS_LOG: self._log_event,
-            SIM_CONTROL: self._sim_control,
+            keys.POSE: self._pose,
+            keys.IMU: self._imu,
+            keys.ODOM: self._odom,
+            keys.SCAN: self._scan,
+            keys.STATE: self._state,
+            keys.DRIVE_CMD: self._cmd,
+            keys.PLAN: self._plan,
+            keys.LAP: self._lap_event,
+            keys.VESC_STATE: self._vesc,
+            keys.SIM_TRUTH: self._truth,
+            keys.EVENTS_LOG: self._log_event,
+            keys.SIM_CONTROL: self._sim_control,
         }
         self._static: tuple[Track | None, CurvatureProfile | None,
                             Mapping[str, str | float | int] | None] | None = None
@@ -539,7 +526,7 @@ class Recorder:
             add("health/pose_sigma_yaw_rad", tl, t,
                 math.sqrt(m.cov[PoseAxis.YAW, PoseAxis.YAW]))
         # the localiser's pose is drawn only while no State comes (the car shows the State)
-        if (self._recv_wall - self._last_seen_wall.get(STATE, -1e18) > 1.0
+        if (self._recv_wall - self._last_seen_wall.get(keys.STATE, -1e18) > 1.0
                 and self._visual_due("world/pose", t, self.cfg.visual_max_hz)):
             self._set_time(tl, t)
             self.rec.log("world/pose", rr.Points2D.from_fields(positions=[[m.x_m, m.y_m]]))

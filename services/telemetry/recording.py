@@ -15,13 +15,13 @@ information; all are one recording id (a viewer opening several shows one run;
 ``racestack report`` reads them as one). A SIGKILL leaves the closed segments intact and the
 open one without a footer (readable by streaming up to its last flush).
 
-Memory (measured with rerun-sdk 0.41, issue 15): a file sink keeps an index of every chunk
-until its footer is written, so one file grows the process with the race; closing segments
-bounds that. But a NEW ``RecordingStream`` per segment leaks about 0.8 MB each (more with
-data), and every blueprint sent (``default_blueprint=`` or ``send_blueprint``) about 2.3 MB:
-so the run keeps ONE stream, swaps only its file sink, and sends the default layout once,
-into the first segment (and ``telemetry.rbl`` beside it, for any segment alone:
-``rerun telemetry.0003.rrd telemetry.rbl``). The live stream is a separate stream (gRPC
+Memory (rerun-sdk 0.41): a file sink keeps an index of every chunk until its footer is
+written, so one file grows the process with the race; closing segments bounds that. But a
+NEW ``RecordingStream`` per segment leaks memory that is never given back, and so does every
+blueprint sent (``default_blueprint=`` or ``send_blueprint``): so the run keeps ONE stream,
+swaps only its file sink, and sends the default layout once, into the first segment (and
+``telemetry.rbl`` beside it, for any segment alone: ``rerun telemetry.0003.rrd
+telemetry.rbl``). The live stream is a separate stream (gRPC
 only, at most ``serve_memory_limit_mb`` kept) that lives for the whole run.
 
 ``RunRecording.finish`` logs what is still queued and writes ``<stem>_stats.json``;
@@ -57,7 +57,7 @@ from shared.track import load_track
 log = logging.getLogger(__name__)
 #: Stem of the recording's segments inside the run folder (``telemetry.0000.rrd``, ...).
 RRD_STEM = "telemetry"
-#: File name of a single-file recording (runs recorded before segments; still read).
+#: File name of a single-file recording (read like a run of segments).
 RRD_NAME = f"{RRD_STEM}.rrd"
 #: Longest wait for the final flush at exit [s].
 CLOSE_TIMEOUT_S = 5.0

@@ -1,8 +1,8 @@
-"""Finding and opening a run's ``.rrd`` files: segments, old single files, cut-off files.
+"""Finding and opening a run's ``.rrd`` files: segments, single files, cut-off files.
 
 A run recorded by the telemetry service is a sequence of segments ``<stem>.0000.rrd``,
-``<stem>.0001.rrd``, ... in its run folder (``services.telemetry.recording``); runs recorded
-before segments are one ``<stem>.rrd``. ``find_segments`` turns what a user names (a file,
+``<stem>.0001.rrd``, ... in its run folder (``services.telemetry.recording``); a run recorded
+in one file is one ``<stem>.rrd``. ``find_segments`` turns what a user names (a file,
 a run folder, or the ``<stem>.rrd`` of a segmented run, which the launcher prints) into the
 files of one recording, in order. ``read_store`` reads one file by streaming (a file
 without footer, left by a SIGKILL, is read up to its last complete message).

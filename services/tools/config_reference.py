@@ -33,6 +33,7 @@ from pydantic_core import PydanticUndefined
 
 from shared.config.base import Choices
 from shared.config.root import RacestackConfig
+from shared.config.toml_write import value as toml_value
 
 __all__ = ["UNIT_SUFFIXES", "KeyDoc", "iter_keys", "main", "render_markdown"]
 
@@ -272,23 +273,21 @@ def _num(v: Any) -> str:
     return str(v)
 
 
-def _toml(v: Any) -> str:
-    """A default as TOML-like text."""
+def _not_toml(v: Any) -> str:
+    """The reference's text of a default TOML cannot hold: ``none`` (an absent optional),
+    ``{...}`` (a table given as a model), a set as an array."""
     if v is None:
         return "none"
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return '"' + v.replace('"', '\\"') + '"'
-    if isinstance(v, int | float):
-        return _num(v)
-    if isinstance(v, list | tuple | set | frozenset):
-        return "[" + ", ".join(_toml(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{k} = {_toml(x)}" for k, x in v.items()) + "}"
     if isinstance(v, BaseModel):
         return "{...}"
+    if isinstance(v, set | frozenset):
+        return _toml(sorted(v, key=str))
     return str(v)
+
+
+def _toml(v: Any) -> str:
+    """A default as TOML text (``shared.config.toml_write``; ``_not_toml`` for the rest)."""
+    return toml_value(v, other=_not_toml)
 
 
 def _unit(name: str, text: str) -> str:

@@ -64,7 +64,7 @@ class LocalizationSettings(Section):
     Attributes:
         filter: "ekf" (default: the fused, latency-compensated filter of ``ekf.py``) or
             "passthrough" (the newest pose predicted to now by a unicycle, ``fusion.py``:
-            the bridge before issue 13).
+            no filtering).
         pose_source: "external" (``vehicle/pose`` from a localiser or the simulator) or
             "lidar" (the bridge's own particle filter on ``vehicle/scan`` and the track's
             occupancy map).

@@ -187,7 +187,7 @@ class RacelineSettings(Section):
     steering_delay_s: float = Field(
         0.06, ge=0.0, le=1.0,
         description="tracker: pose -> wheels [s]: compute 2 + actuation 10 + steering 20 + "
-        "servo 10 ms, + 18 ms found best at 20 Hz in the bench (map416, paperlike)",
+        "servo 10 ms, plus an 18 ms allowance for the 20 Hz planner rate",
     )
 
 
@@ -195,9 +195,9 @@ class CimpccLineSolver(Section):
     """``cimpcc-line``'s own solver tolerances (the rest is ``[planner.solver]``'s).
 
     Warm-started from the shifted plan, its solution barely moves between ticks: a looser
-    tolerance, a larger first barrier parameter and a small push into the interior give the
-    same laps (17 laps on map416 and paperlike, to the millisecond) in about 1.3 fewer
-    iterations (``python -m benchmarks.solve_time --method cimpcc-line --plant sim``).
+    tolerance, a larger first barrier parameter and a small push into the interior save
+    iterations without changing the laps (``python -m benchmarks.solve_time --method
+    cimpcc-line --plant sim`` counts them; README).
     """
 
     tol: float = Field(2e-2, gt=0.0, le=1.0, description="convergence tolerance")
@@ -209,12 +209,12 @@ class CimpccLineSolver(Section):
 
 
 class CimpccLineSettings(Section):
-    """``cimpcc-line`` (issue #12): CiMPCC's cost contouring the car's minimum-time line.
+    """``cimpcc-line``: CiMPCC's cost contouring the car's minimum-time line.
 
     The line and its speed profile are the minimum-time lap (``services.planner.mintime.ocp``)
     of the car, solved once per track and cached; the velocity pulls take the profile's
-    speed at each predicted stage (beta = 1). Tuned on map416 and paperlike in the bench
-    (``services/planner/mpc/planner.py``, ``services/planner/reference.py``).
+    speed at each predicted stage (beta = 1) (``services/planner/mpc/planner.py``,
+    ``services/planner/reference.py``).
     """
 
     weights: MethodWeights = Field(
@@ -226,13 +226,12 @@ class CimpccLineSettings(Section):
     horizon_steps: int = Field(
         10, ge=2, le=60,
         description="N of this method's problem (10 x 50 ms: 0.5 s ahead, as the paper's; "
-        "N = 11 is 0.009 s a lap faster on map416 but left the track once in 17 laps with "
-        "the EKF's poses, 12 leaves it on paperlike)",
+        "README: longer horizons with the EKF's poses)",
     )
     model: Literal["kinematic", "kinematic_slip", "kinematic_slip_speed"] = Field(
         "kinematic_slip_speed",
         description="'kinematic': the paper's bicycle (wheelbase_m); 'kinematic_slip': with "
-        "the car's steady-state tyre slip and wheelbase (the light model, 0.6-0.8 % slower); "
+        "the car's steady-state tyre slip and wheelbase (the light model); "
         "'kinematic_slip_speed': the slip fitted up to the limit, and the car's speed a "
         "state behind its speed loop (v_l its command; the line's tyre drag per stage) "
         "(services/planner/mpc/model.py)",
@@ -240,8 +239,8 @@ class CimpccLineSettings(Section):
     lead_pose_s: float = Field(
         0.05, ge=0.0, le=0.5,
         description="plan from the pose (and speed) predicted this far ahead with the acting "
-        "command (compute 2 + actuation 10 + steering 20 + servo ~10 ms; 0.04 found best "
-        "with model 'kinematic_slip') [s]; 0: the measured pose",
+        "command (compute 2 + actuation 10 + steering 20 + servo ~10 ms) [s]; 0: the "
+        "measured pose",
     )
     v_max_mps: float = Field(
         4.18, gt=1.0, le=100.0,
@@ -251,7 +250,7 @@ class CimpccLineSettings(Section):
     line_margin_m: float = Field(
         0.06, ge=0.0, le=1.0,
         description="the minimum-time lap keeps its footprint this far inside [m] (room for "
-        "the tracking error, at most 5 cm in the bench)",
+        "the tracking error)",
     )
     grip_fraction: float = Field(
         0.95, gt=0.1, le=1.0,
@@ -270,15 +269,14 @@ class CimpccLineSettings(Section):
     integrator: Literal["rk4", "rk2", "euler"] | None = Field(
         "rk2",
         description="this method's discretisation of its model (None: [planner] "
-        "integrator); 'rk2' (the midpoint rule) halves the speed-state model's derivatives "
-        "against 'rk4' for the same laps (0.002 s on map416)",
+        "integrator); 'rk2' (the midpoint rule) evaluates the model's derivatives half as "
+        "often as 'rk4'",
     )
     lifted: bool = Field(
         False,
         description="track limits and speed pulls on each stage's own state instead of the "
-        "prediction from the stage before (services/planner/mpc/problem.py: the same problem, "
-        "a third less solver time with model 'kinematic_slip'; no gain with the speed "
-        "state, whose solver then takes more iterations)",
+        "prediction from the stage before (services/planner/mpc/problem.py: the same problem "
+        "in another layout; README: its solve times)",
     )
     solver: CimpccLineSolver = CimpccLineSolver()
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.angles import wrap_angle
 from shared.hokuyo.decoder import Response
 from shared.hokuyo.encoding import decode_array, decode_int
 from shared.hokuyo.protocol import DATA_CODES, ScanRequest
@@ -142,7 +143,7 @@ class BeamGeometry:
     """The angles of a scan's beams in the car frame.
 
     Attributes:
-        angle_min_rad: angle of beam 0 [rad].
+        angle_min_rad: angle of beam 0 [rad], wrapped into [-pi, pi).
         angle_increment_rad: angle from beam i to beam i + 1 [rad] (negative upside down).
         beams: number of beams.
     """
@@ -165,7 +166,7 @@ class BeamGeometry:
         sign = -1.0 if upside_down else 1.0
         centre = req.start_step + 0.5 * (c - 1) - params.afrt
         first = sign * centre * params.step_rad + mount_yaw_rad
-        first = math.remainder(first, _TWO_PI)
+        first = wrap_angle(first)
         return cls(first, sign * c * params.step_rad, req.beams)
 
     def angles_rad(self) -> np.ndarray:

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from services.simulator.sensors import SensorSuite
-from services.simulator.state import Command, Pose2D, rear_axle, wrap_angle
+from services.simulator.state import Command, Pose2D, rear_axle
 from services.simulator.vehicle import Simulator
+from shared.angles import wrap_angle
 from shared.config.simulator import SimulatorSettings
 from shared.track.occupancy import FREE, OCCUPIED, OccupancyGrid
 

@@ -24,8 +24,9 @@ from typing import Any
 import pytest
 
 from services.simulator import StepResult, centreline_pose, service
-from services.simulator.limits import state_fault, wrap_pi
+from services.simulator.limits import state_fault
 from services.simulator.service import STATE_FAULT_KEY, SimulatorService, occupancy_for
+from shared.angles import wrap_angle
 from shared.bus import Bus
 from shared.bus.fake import FakeBus
 from shared.config import RacestackConfig, config_from_dict, load_config
@@ -119,8 +120,8 @@ def test_state_fault_names_what_left_the_contract(svc: SimulatorService) -> None
     assert state_fault(dataclasses.replace(st, delta_rad=1.2))[0] == "steering_out_of_range"
     assert state_fault(dataclasses.replace(st, x_m=2e4))[0] == "position_out_of_range"
     assert state_fault(dataclasses.replace(st, yaw_rate_radps=math.nan))[0] == "not_finite"
-    assert wrap_pi(3.3) == pytest.approx(3.3 - 2 * math.pi)
-    assert wrap_pi(-math.pi) == pytest.approx(-math.pi)
+    assert wrap_angle(3.3) == pytest.approx(3.3 - 2 * math.pi)
+    assert wrap_angle(-math.pi) == pytest.approx(-math.pi)
 
 
 def test_slip_beyond_pi_is_published_wrapped_and_counted(
@@ -386,7 +387,7 @@ def test_off_track_reset_puts_the_car_on_the_centreline_at_rest(track: Track) ->
     st = svc.sim.state
     x, y, yaw = centreline_pose(track, svc.timer.s_m)
     assert st.v_mps == 0.0
-    assert math.hypot(st.x_m - x, st.y_m - y) < 0.05 and abs(wrap_pi(st.yaw_rad - yaw)) < 1e-6
+    assert math.hypot(st.x_m - x, st.y_m - y) < 0.05 and abs(wrap_angle(st.yaw_rad - yaw)) < 1e-6
     assert "put back on the centreline" in _logs(svc)[-1].text
     _step(svc, 2)
     assert not svc.timer.off_track  # back on track, timing goes on

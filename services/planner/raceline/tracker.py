@@ -69,6 +69,7 @@ import numpy as np
 
 from services.planner.mintime.model import DELTA
 from services.planner.mintime.ocp import MinTimeLap
+from shared.angles import wrap_angle
 from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track
 from shared.vehicle.steady_state import steady_state_steering
@@ -126,7 +127,7 @@ class ReferenceLap:
     def _closed(self) -> dict[str, np.ndarray]:
         """Each table with its first value repeated at ``s = L`` (yaw: one turn on)."""
         yaw = np.asarray(self.yaw_rad, dtype=float)
-        closing = yaw[-1] + math.remainder(yaw[0] - yaw[-1], math.tau)
+        closing = yaw[-1] + wrap_angle(yaw[0] - yaw[-1])
         tables = {
             "s": np.append(self.s_m, self.length_m),
             "yaw": np.append(yaw, closing),
@@ -368,7 +369,7 @@ class Tracker:
         g = self.gains
         s, e = self.project(x_m, y_m, s_hint_m)
         self._s_hint = s
-        dpsi = math.remainder(yaw_rad - p.at("yaw", s), math.tau)
+        dpsi = wrap_angle(yaw_rad - p.at("yaw", s))
         v_p = p.at("v", s)
         l_d = g.lookahead_m(v_p)
         e_la = e - l_d * math.sin(dpsi)

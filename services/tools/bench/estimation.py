@@ -21,6 +21,7 @@ import numpy as np
 
 from services.localization_bridge import FusedEstimator, LidarPoseSource
 from services.simulator import SensorSuite, StepResult
+from shared.angles import wrap_angle
 from shared.config.localization import LocalizationSettings
 from shared.config.simulator import SimulatorSettings
 from shared.messages import Scan
@@ -102,7 +103,7 @@ class InLoopEstimator:
         e = self.filter.estimate(now_s)
         self.invalid_ticks += not e.valid
         self._err_xy.append(math.hypot(e.x_m - truth[0], e.y_m - truth[1]))
-        self._err_yaw.append(math.remainder(e.yaw_rad - truth[2], 2.0 * math.pi))
+        self._err_yaw.append(wrap_angle(e.yaw_rad - truth[2]))
         return e.x_m, e.y_m, e.yaw_rad
 
     def counts(self) -> Counter[str]:

@@ -43,8 +43,6 @@ from services.planner import (
 )
 from services.tools.bench.closed_loop import LoopOptions, run_method
 from services.tools.bench.estimation import ESTIMATORS
-from services.tools.bench.figures import write_figures
-from services.tools.bench.table import format_paper_table, format_table
 from services.tools.bench.tuned import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.methods import METHODS, bench_methods
@@ -53,8 +51,11 @@ from shared.curvature import track_profile
 from shared.evaluation import (
     MethodRun,
     ReferenceLine,
+    format_paper_table,
+    format_table,
     paper_table_applies,
     results_document,
+    write_figures,
     write_results,
 )
 from shared.outdir import writable_dir_problem

@@ -24,9 +24,9 @@ from typing import Any
 
 from optuna.trial import FrozenTrial
 
-from services.tools.tune import toml_out
 from services.tools.tune.search import deep_merge, dotted
 from shared.config import RacestackConfig, load_config
+from shared.config import toml_write as toml_out
 from shared.config.methods import CIMPCC
 
 BEST = "best.toml"

@@ -7,9 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from services.tools.bench.results import LapRecord, MethodRun, Trace, results_document
 from services.tools.bench.run import main
-from services.tools.bench.table import format_table
+from shared.evaluation import LapRecord, MethodRun, Trace, format_table, results_document
 
 
 def _run(name: str, laps: list[float]) -> MethodRun:

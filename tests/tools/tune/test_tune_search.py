@@ -1,13 +1,11 @@
-"""racestack tune's pure core: search spaces, overlays, scoring, the TOML writer."""
+"""racestack tune's pure core: search spaces, overlays, scoring (the TOML writer:
+tests/shared/test_toml_write.py)."""
 
 from __future__ import annotations
-
-import tomllib
 
 import numpy as np
 import pytest
 
-from services.tools.tune import toml_out
 from services.tools.tune.search import (
     PENALTY_S,
     SeedResult,
@@ -148,21 +146,3 @@ def test_deep_merge_keeps_the_base_and_overlays_keys() -> None:
         "curvature": {"alpha": 3.0},
     }
     assert base["planner"]["cimpcc"] == {"q_lag": 700.0}  # not modified
-
-
-def test_toml_writer_round_trips() -> None:
-    data = {
-        "title": 'a "quoted" \\ string',
-        "planner": {
-            "method": "cimpcc",
-            "cimpcc": {"v_up_mps": [4.18, 3.8], "gamma": 40.0},
-            "solver": {"compile": False, "max_iter": 100},
-        },
-        "bus": {"connect": ["tcp/1.2.3.4:7447"], "services": {"router": {"mode": "router"}}},
-        "empty": {},
-    }
-    text = toml_out.dumps(data, "a header\nsecond line")
-    assert text.startswith("# a header\n# second line\n")
-    assert tomllib.loads(text) == data
-    with pytest.raises(toml_out.TomlWriteError):
-        toml_out.dumps({"x": None})
