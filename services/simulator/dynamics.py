@@ -80,6 +80,9 @@ from shared.vehicle import FLOAT_OPS, GRAVITY_MPS2, axle_peak_friction, make_dyn
 
 #: Time constant [s] with which psi_dot and beta follow the kinematic values at low speed.
 KINEMATIC_RELAX_S = 0.02
+#: Below this speed [m/s] the kinematic blend takes no yaw energy out of the speed (p / v would
+#: overflow at a speed that is only a rounding error away from standing still).
+ENERGY_MIN_SPEED_MPS = 1e-6
 #: RK4's stability region contains the left half-disc of radius 2.61; keep h |lambda| below.
 RK4_STABLE_HLAMBDA = 2.5
 
@@ -225,7 +228,7 @@ class SingleTrackModel:
                 if not gym_exact:
                     # rolling without slip is workless: yaw energy comes out of the speed
                     p_yaw = iz * r * dr_kin
-                    if p_yaw > 0.0 and v != 0.0:
+                    if p_yaw > 0.0 and speed > ENERGY_MIN_SPEED_MPS:
                         dv_kin = a - p_yaw / (m * v)
                 dv = (1.0 - w) * dv_kin
             if w > 0.0:

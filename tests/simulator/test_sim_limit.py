@@ -205,3 +205,12 @@ def test_saturated_and_smooth_laws_agree_inside_the_limit() -> None:
             n += 1
             e = smooth(v, beta, r, delta, a)
             np.testing.assert_allclose(d[:3], e[:3], rtol=1e-12, atol=1e-12)
+
+
+def test_a_denormal_speed_keeps_the_derivatives_finite() -> None:
+    """A speed a rounding error away from standing still (found by Hypothesis: 5e-324 m/s)
+    while the car yaws: the kinematic blend's yaw-energy term must not divide by it."""
+    for preset, tyre in PHYSICAL:
+        model = SingleTrackModel(_params(preset, tyre))
+        s = (0.0, 0.0, 0.2, 5e-324, 0.0, 0.5, 0.0)
+        assert all(math.isfinite(x) for x in model.rhs(s, 1.0, 1.0)), (preset, tyre)
