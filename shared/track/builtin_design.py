@@ -60,8 +60,9 @@ GENTLE = {
 DESIGNS = {"paperlike": PAPERLIKE, "gentle": GENTLE}
 
 
-def _turtle(segments: list, closing: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """Walk the segments; return (end position, end heading) after the whole loop."""
+def loop_end(segments: list, closing: tuple[float, float]) -> tuple[np.ndarray, float]:
+    """Walk the segments (exact arcs, no ramps) from the origin heading +x; return the end
+    position [m] and the end heading [rad]; `closing` gives the two ``"close"`` lengths [m]."""
     pos = np.zeros(2)
     heading = 0.0
     k = 0
@@ -84,11 +85,11 @@ def _turtle(segments: list, closing: tuple[float, float]) -> tuple[np.ndarray, n
 
 def solve_closure(segments: list) -> tuple[float, float]:
     """Lengths of the two ``"close"`` straights that make the loop end where it began."""
-    base, heading = _turtle(segments, (0.0, 0.0))
+    base, heading = loop_end(segments, (0.0, 0.0))
     if abs(heading - 2 * np.pi) > 1e-9:
         raise ValueError(f"turns must add to +360 deg, got {np.degrees(heading):.1f}")
-    e1, _ = _turtle(segments, (1.0, 0.0))
-    e2, _ = _turtle(segments, (0.0, 1.0))
+    e1, _ = loop_end(segments, (1.0, 0.0))
+    e2, _ = loop_end(segments, (0.0, 1.0))
     A = np.stack([e1 - base, e2 - base], axis=1)
     lengths = np.linalg.solve(A, -base)
     if np.any(lengths <= 0):

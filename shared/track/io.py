@@ -12,6 +12,7 @@ Formats (see ``docs`` in the README):
   extracted from its free space (``shared.track.from_map``); written back with
   ``write_f1tenth_centerline``.
 - ``builtin:NAME`` or a bare built-in name for the tracks shipped in the package.
+- ``gen:SEED`` for a track of racestack's seeded generator (``shared.track.generator``).
 - F1TENTH raceline CSV (``load_f1tenth_raceline`` / ``write_f1tenth_raceline``): two
   comment lines, then ``# s_m; x_m; y_m; psi_rad; kappa_radpm; vx_mps; ax_mps2``, then
   ``;`` separated rows.
@@ -170,15 +171,29 @@ def load_builtin(name: str) -> Track:
     )
 
 
+def load_generated(spec: str) -> Track:
+    """The generated track of ``gen:SEED`` (SEED a non-negative integer)."""
+    from shared.track.generator import generate_track
+
+    seed = spec.removeprefix("gen:").strip()
+    if not (seed.isascii() and seed.isdigit()):
+        raise TrackError(spec, "expected gen:SEED with SEED an integer >= 0, e.g. gen:7")
+    return generate_track(int(seed))
+
+
 def load_track(spec: str | Path) -> Track:
-    """Load a track from a built-in name, ``builtin:NAME``, a folder, a file or a ROS map.
+    """Load a track from a built-in name, ``builtin:NAME``, ``gen:SEED``, a folder, a file or
+    a ROS map.
 
     A file may be an F1TENTH centreline CSV or the centre file of a CiMPCC triple (its left and
-    right files are found beside it). Raises TrackError naming the spec and the problem.
+    right files are found beside it); ``gen:SEED`` is ``shared.track.generator.generate_track``
+    of the integer SEED. Raises TrackError naming the spec and the problem.
     """
     text = str(spec)
     if text.startswith("builtin:"):
         return load_builtin(text.removeprefix("builtin:"))
+    if text.startswith("gen:"):
+        return load_generated(text)
     path = Path(text).expanduser()
     if not path.exists():
         if text in BUILTIN_TRACKS:
@@ -186,7 +201,8 @@ def load_track(spec: str | Path) -> Track:
         raise TrackError(
             text,
             "no such file or folder, and not a built-in track "
-            f"(built-in: {', '.join(BUILTIN_TRACKS)})",
+            f"(built-in: {', '.join(BUILTIN_TRACKS)}; or builtin:NAME, gen:SEED for a "
+            "generated track, a folder, a centreline CSV or a ROS map .yaml)",
         )
     if path.is_dir():
         return load_track_folder(path)
