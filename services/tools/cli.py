@@ -25,7 +25,7 @@ from shared.config import ConfigError, load_config
 from shared.config.methods import planner_methods
 from shared.extras import missing_extra, require
 from shared.service_shell import OneLineArgumentParser, positive_int
-from shared.track import TrackError
+from shared.track import TRACK_SPEC_HELP, TrackError
 
 Handler = Callable[[argparse.Namespace], int]
 #: Services startable with ``racestack run NAME`` (each is ``python -m services.NAME``): the
@@ -244,7 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     laps = sub.add_parser("laps", help="planner vs its own kinematic model, lap times")
     laps.add_argument("--config", help="TOML configuration file")
-    laps.add_argument("--track", help="built-in name, folder or centreline file")
+    laps.add_argument("--track", help=f"{TRACK_SPEC_HELP} (default: the config's)")
     laps.add_argument(
         "--method", choices=planner_methods(),
         help="a method of the registry (default: the configuration's [planner] method)",

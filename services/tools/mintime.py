@@ -40,7 +40,14 @@ from shared.config import ConfigError, load_config
 from shared.config.methods import RACELINE
 from shared.config.vehicle import DynamicVehicleParams
 from shared.outdir import writable_dir_problem
-from shared.track import RacelineTable, Track, TrackError, load_track, write_f1tenth_raceline
+from shared.track import (
+    TRACK_SPEC_HELP,
+    RacelineTable,
+    Track,
+    TrackError,
+    load_track,
+    write_f1tenth_raceline,
+)
 
 PROG = "racestack mintime"
 
@@ -199,7 +206,7 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
                     "line cimpcc-line contours or the raceline baseline's line (the artefact "
                     "the planner of this configuration reads)")
     ap.add_argument("--config", help="TOML configuration file (its [simulator.vehicle] car)")
-    ap.add_argument("--track", help="built-in name, folder or centreline file (default: config)")
+    ap.add_argument("--track", help=f"{TRACK_SPEC_HELP} (default: the config's)")
     ap.add_argument("--v-max", dest="v_max", metavar="V",
                     help="top speed cap [m/s] (default: [planner.cimpcc] v_up_mps, 4.18)")
     ap.add_argument("--ds", metavar="D", help="grid spacing along the track [m] (default 0.1)")

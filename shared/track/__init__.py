@@ -5,6 +5,7 @@ from shared.track.geometry import Track
 from shared.track.io import (
     BUILTIN_TRACKS,
     DEFAULT_TRACK,
+    TRACK_SPEC_HELP,
     RacelineTable,
     load_f1tenth_raceline,
     load_map_track,
@@ -17,6 +18,7 @@ from shared.track.occupancy import OccupancyGrid, load_ros_map, occupancy_for, r
 __all__ = [
     "BUILTIN_TRACKS",
     "DEFAULT_TRACK",
+    "TRACK_SPEC_HELP",
     "OccupancyGrid",
     "RacelineTable",
     "Track",

@@ -153,6 +153,13 @@ def load_track_folder(folder: str | Path) -> Track:
     )
 
 
+#: What a track argument may be, for the command lines' help.
+TRACK_SPEC_HELP = (
+    "a built-in name (paperlike, gentle), gen:SEED (a generated track), a folder, an F1TENTH "
+    "centreline CSV or a ROS map's MAP.yaml"
+)
+
+
 def load_builtin(name: str) -> Track:
     """Load a built-in track shipped in the package (``paperlike`` or ``gentle``)."""
     if name not in BUILTIN_TRACKS:

@@ -59,7 +59,7 @@ from shared.evaluation import (
     write_results,
 )
 from shared.outdir import writable_dir_problem
-from shared.track import Track, TrackError, load_track
+from shared.track import TRACK_SPEC_HELP, Track, TrackError, load_track
 
 #: Progress-speed references [m/s] a swept variant tries (v_l ref = 1.1 x v_p ref).
 DEFAULT_SWEEP_MPS = (2.2, 2.4, 2.6, 2.8, 3.0, 3.2, 3.4)
@@ -369,7 +369,7 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap = ap or argparse.ArgumentParser(prog="racestack bench", description=__doc__.splitlines()[0])
     ap.add_argument("--config", help="TOML configuration file")
     ap.add_argument(
-        "--track", help="built-in name, folder or centreline file (default: the config's track)"
+        "--track", help=f"{TRACK_SPEC_HELP} (default: the config's [track] source)"
     )
     ap.add_argument("--laps", type=int, default=17, help="timed flying laps per method")
     ap.add_argument(

@@ -45,7 +45,7 @@ from services.tools.tune.search import (
 )
 from shared.config import ConfigError, load_config
 from shared.outdir import writable_dir_problem
-from shared.track import Track, TrackError, load_track
+from shared.track import TRACK_SPEC_HELP, Track, TrackError, load_track
 
 if TYPE_CHECKING:  # optuna is imported only when a study runs
     from services.tools.tune.study import GracefulStop
@@ -61,7 +61,7 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     """Arguments of ``racestack tune``."""
     ap = ap or argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     ap.add_argument("--method", required=True, help=f"one of {', '.join(tunable_methods())}")
-    ap.add_argument("--track", help="built-in name, folder or file (default: the config's)")
+    ap.add_argument("--track", help=f"{TRACK_SPEC_HELP} (default: the config's)")
     ap.add_argument("--trials", type=int, default=40,
                     help="the study's trial budget, all workers together (default 40)")
     ap.add_argument("--out", required=True, help="output folder (best.toml, trials, figure)")
