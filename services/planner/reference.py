@@ -31,7 +31,7 @@ from shared.track import Track
 #: 0.025 rad at the tightest 0.8 m radius of the lines here.
 LINE_SPACING_M = 0.04
 
-#: The minimum-time lap's acceleration input (``mintime_model.INPUT_NAMES``).
+#: The minimum-time lap's acceleration input (``mintime.model.INPUT_NAMES``).
 ACCEL_INPUT = "accel_mps2"
 #: The kinds of reference path.
 CENTRELINE, MIN_TIME_LINE = "centreline", "min-time-line"

@@ -8,8 +8,8 @@ the last solve is skipped, the next one is used). A state older than ``stale_sta
 (speed 0) at once, never a guess. No state at all for ``stale_state_s`` is a DEADLINE, not
 a poll: each state re-arms a ``BrakeDeadline`` and a second worker waits on a condition
 with the time left as its timeout, so the brake goes out ``stale_state_s`` after the last
-state (plus the wake-up's scheduling jitter; before issue 15 a 50 ms check period added up to
-50 ms), and again every planner period while no state comes. Stamps are wall-clock seconds.
+state (plus the wake-up's scheduling jitter), and again every planner period while no
+state comes. Stamps are wall-clock seconds.
 
 Order of one tick, shortest pose-to-command path first: solve, publish ``cmd/drive`` (from
 inside ``Planner.step``, before its result record is assembled), pause

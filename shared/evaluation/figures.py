@@ -68,7 +68,7 @@ def plural(n: int, word: str) -> str:
 
 
 def no_solver(name: str) -> bool:
-    """True for a method without an optimiser (pure pursuit on a raceline): what Fig. 8
+    """True for a method without an optimiser (a tracker on a raceline): what Fig. 8
     shows for it is the wall time of its tick's computation, no solve."""
     return name.lower().startswith(NO_SOLVER_PREFIXES)
 

@@ -1,4 +1,4 @@
-"""The minimum-time lap of the simulator's car: an offline optimal-control problem (issue #10).
+"""The minimum-time lap of the simulator's car: an offline optimal-control problem.
 
 Pure maths, no I/O: ``solve_min_time(track, vehicle, settings) -> MinTimeLap``.
 
@@ -18,7 +18,7 @@ state ``x = [n, xi, v, beta, r, delta]``, input ``u = [sv, a]``)::
 
 ``mu_i`` from ``shared.vehicle.axle_peak_friction``; the gym's ``linear`` tyres have no
 friction limit (only steering, acceleration and speed bound the car). With Pacejka tyres
-``|a|`` stays 0.1 % below ``min_i mu_i g`` (``mintime_model.PACEJKA_ACCEL_BACKOFF``). The
+``|a|`` stays 0.1 % below ``min_i mu_i g`` (``mintime.model.PACEJKA_ACCEL_BACKOFF``). The
 ``a v`` form of the drive limit is the simulator's ``a <= a_max v_switch / v`` above
 ``v_switch`` (added only when ``v_max > v_switch``; below it ``a <= a_max`` binds).
 ``v_min`` (1 m/s) keeps the car in the simulator's dynamic regime (full weight above
@@ -33,13 +33,13 @@ every collocation point and at each interval's start, each with its interval's i
 acceleration jumps at a node, and the tyres must hold on both sides of it); the footprint
 at the ``N`` grid nodes (widths there: the minimum over the footprint's reach). A small
 regularisation, ``1e-4 h sum (sv / sv_max)^2 + 1e-4 sum (da / a_lim)^2`` [s], keeps IPOPT
-off chattering on singular arcs (e.g. along the speed cap); it costs well under a
-millisecond of lap time (0.06 ms on map416) and saves a third of the iterations. No
+off chattering on singular arcs (e.g. along the speed cap) at a cost well under a
+millisecond of lap time. No
 input-rate bounds: the simulator's speed loop moves ``a`` within its 10 ms actuation delay,
 and the steering's rate is already the input ``sv`` with the simulator's bounds.
 
 IPOPT (MUMPS) starts from the centreline at the quasi-steady point-mass speed profile
-(``mintime_model.point_mass_speed`` at ``mu g``), with kinematic steering and slip.
+(``mintime.model.point_mass_speed`` at ``mu g``), with kinematic steering and slip.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ localization bridge, planner and telemetry as separate processes, waits until al
 from the simulator), prints the lap table and stops every child. Ctrl-C stops them all too; a
 child that dies is reported and the rest are stopped.
 
-On the terminal (issue #16): the ``rerun --connect ...`` line of ``--serve``; the progress of
+On the terminal: the ``rerun --connect ...`` line of ``--serve``; the progress of
 the lap being driven and the planned speed (from ``planner/plan``: one line rewritten in
 place on a TTY, a line every 10 s otherwise); on Ctrl-C the table of the laps finished so
 far, then the stack stops (exit code 130). It cannot start (exit code 2, one line on
