@@ -82,18 +82,13 @@ def line_request(
 ) -> LapRequest:
     """The lap ``cimpcc-line`` contours (module docstring) for `car` (None: the F1TENTH
     gym's, the simulator's default car) with the planner `settings`."""
-    car = car or F1TENTH_GYM
     line = settings.cimpcc_line
     lo, hi = settings.bounds.delta_rad
-    update = {
-        "steering_min_rad": max(car.steering_min_rad, lo),
-        "steering_max_rad": min(car.steering_max_rad, hi),
-    }
+    planned = planning_vehicle(car or F1TENTH_GYM, (lo, hi))
     if line.grip_fraction != 1.0:
-        update["mu"] = car.mu * line.grip_fraction
+        planned = planned.model_copy(update={"mu": planned.mu * line.grip_fraction})
     return LapRequest(
-        car.model_copy(update=update),
-        MinTimeSettings(v_max_mps=line.v_max_mps, margin_m=line.line_margin_m),
+        planned, MinTimeSettings(v_max_mps=line.v_max_mps, margin_m=line.line_margin_m)
     )
 
 

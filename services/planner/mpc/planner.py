@@ -510,7 +510,7 @@ class Planner:
         v = v_end
         if self._pose_prev is not None:
             x_p, y_p, yaw_p = self._pose_prev
-            heading = yaw_p + math.remainder(yaw_rad - yaw_p, math.tau) / 2
+            heading = yaw_p + wrap_angle(yaw_rad - yaw_p) / 2
             d = (x_m - x_p) * math.cos(heading) + (y_m - y_p) * math.sin(heading)
             v = d / dt + (v_end - v_mean)
         self._pose_prev = (x_m, y_m, yaw_rad)
