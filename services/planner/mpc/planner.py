@@ -49,6 +49,7 @@ from services.planner.mpc.problem import UA, XA, XA_SPEED, OcpProblem, build_pro
 from services.planner.mpc.solver import SolverHandle, make_solver
 from services.planner.recovery import HandOver, Recovery, RecoveryCommand, StallWatch
 from services.planner.reference import ReferencePath, centreline_path, min_time_path
+from shared.angles import wrap_angle
 from shared.config.methods import CIMPCC_LINE, MethodSetup, method_setup
 from shared.config.planner import (
     CurvatureSettings,
