@@ -34,7 +34,7 @@ acceleration-based pursuit is the same idea.)
 ``RacelinePlanner`` has the ``Planner`` interface the bench's closed loop uses (``step``,
 ``reset``, ``settings``), so the bench races it like the MPC methods. It is given the car
 (``vehicle=``, a ``DynamicVehicleParams``; None: ``shared.config.vehicle.F1TENTH_GYM``,
-the simulator's default car); callers racing another car pass ``cfg.simulator.vehicle``.
+the default ``[vehicle]``); callers pass the configuration's car, ``cfg.vehicle``.
 
 Measured (``racestack bench --laps 17 --methods raceline``, default car, 20 Hz, 2 ms
 compute delay): map416 7.213 s (1.012 x the 7.131 s minimum-time lap), paperlike 9.603 s
