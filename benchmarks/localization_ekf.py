@@ -37,8 +37,8 @@ from shared.track import load_track
 
 def drive(track, cfg, laps: int) -> list[StepResult]:
     """Every simulation step of a raceline race on the true pose."""
-    ensure_artefacts(RACELINE, track, cfg.planner, cfg.simulator.vehicle)
-    planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+    ensure_artefacts(RACELINE, track, cfg.planner, cfg.vehicle)
+    planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
     plant = SimulatorPlant(track, cfg.simulator, LoopOptions(laps=laps))
     steps: list[StepResult] = []
     step = plant.sim.step

@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--grid", action="store_true", help="grid check on map416 at the first v_max")
     ap.add_argument("--spielberg", action="store_true", help="also Spielberg (several minutes)")
     args = ap.parse_args(argv)
-    vehicle = load_config(None).simulator.vehicle
+    vehicle = load_config(None).vehicle
     specs = {"map416": str(TRACKS / "map416"), "paperlike": "paperlike"}
     names = [t.strip() for t in args.tracks.split(",") if t.strip()]
     if args.spielberg:

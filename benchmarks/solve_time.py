@@ -56,9 +56,9 @@ def run(
             ),
         }
     )
-    ensure_artefacts(method, track, settings, cfg.simulator.vehicle)  # cimpcc-line's line
+    ensure_artefacts(method, track, settings, cfg.vehicle)  # cimpcc-line's line
     t0 = time.perf_counter()
-    planner = Planner(track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
+    planner = Planner(track, settings, cfg.curvature, vehicle=cfg.vehicle)
     setup_s = time.perf_counter() - t0
     iterations: list[int] = []
     step = planner.step

@@ -1,12 +1,13 @@
 """The car's body, defined once: the footprint and the wheelbase of the 1:10 F1TENTH car.
 
-Every setting that describes the car's size takes its default from here: the simulator's
-footprint (``[simulator.vehicle] width_m``, ``length_m``: lap timer and track limits), the
-footprint telemetry draws (``[telemetry] car_width_m``, ``car_length_m``), the wheelbase of
-the VESC driver's odometry yaw rate (``[vesc] wheelbase_m``) and of the planner's kinematic
-bicycle (``[planner] wheelbase_m``). A setting may still differ from it on purpose (model
-mismatch is configuration); the simulated plant's own axle distances ``lf_m + lr_m``
-(0.3302 m, the F1TENTH gym's) are a parameter of that model, not of this body.
+Every setting that describes the car's size takes its default from here: the car's
+footprint (``[vehicle] width_m``, ``length_m``; the simulated car's gives the lap timer and
+the track limits), the footprint telemetry draws (``[telemetry] car_width_m``,
+``car_length_m``), the wheelbase of the VESC driver's odometry yaw rate (``[vesc]
+wheelbase_m``) and of the planner's kinematic bicycle (``[planner] wheelbase_m``). A setting
+may still differ from it on purpose (model mismatch is configuration); the car's own axle
+distances ``lf_m + lr_m`` (0.3302 m, the F1TENTH gym's) are a parameter of the dynamic
+model, not of this body.
 
 Plain constants, no imports: configuration and cores alike can read them.
 """

@@ -256,7 +256,7 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
         "building the %s planner on %s (compiled problem cached)", cfg.planner.method, track.name
     )
     try:
-        planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+        planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
     except MinTimeArtefactMissingError as exc:  # made by the tools, never solved here
         raise exc.for_config(args.config, cfg.track.source) from None
     return PlannerShell.host(cfg.bus, stop, lambda bus: PlannerShell(planner, bus))

@@ -168,6 +168,10 @@ class SimulatorService(Service):
         track = load_track(cfg.track.source)
         log.info("track %s: %.2f m; building the car and its sensors (lidar at %g Hz)",
                  track.name, track.length_m, cfg.simulator.lidar.rate_hz)
+        if cfg.simulates_another_car:
+            log.info("racing [simulator.vehicle] (preset %s), not the planners' [vehicle] "
+                     "(preset %s): a model mismatch", cfg.simulator.vehicle.preset,
+                     cfg.vehicle.preset)
         return cls(cfg, bus, track)
 
     def stamp(self, t_sim: float) -> float:

@@ -4,7 +4,7 @@ racestack up [--laps 3]          the stack racing the simulator, one process per
 racestack demo                   the main job (same as ``up``)
 racestack run SERVICE            one service alone (router, simulator, planner, ...)
 racestack bench ...              the paper's lap-time experiment in one process
-racestack mintime ...            the minimum-time lap of the simulator's car (the limit)
+racestack mintime ...            the minimum-time lap of the car (the limit, the planner's lines)
 racestack tune ...               search a method's parameters for the fastest clean laps
 racestack report RUN             the lap table and figures of a recorded run
 racestack track --from-map M     a track (centreline CSV + PNG) from a SLAM map's yaml
@@ -42,8 +42,8 @@ def _cmd_laps(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     track = load_track(args.track or cfg.track.source)
     settings = cfg.planner.model_copy(update={"method": args.method or cfg.planner.method})
-    ensure_artefacts(settings.method, track, settings, cfg.simulator.vehicle)
-    planner = make_planner(track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
+    ensure_artefacts(settings.method, track, settings, cfg.vehicle)
+    planner = make_planner(track, settings, cfg.curvature, vehicle=cfg.vehicle)
     L = track.length_m
     print(f"{settings.method} on {track.name} ({L:.2f} m), kinematic model, {args.laps} laps")
     plant = ModelPlant.kinematic(
@@ -212,7 +212,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from services.tools.mintime import build_parser as mintime_parser
 
-    mintime = sub.add_parser("mintime", help="minimum-time lap of the simulator's car (OCP)")
+    mintime = sub.add_parser("mintime", help="minimum-time lap of the car (OCP)")
     mintime_parser(mintime)
     mintime.set_defaults(handler=_cmd_mintime)
 

@@ -1,7 +1,13 @@
-"""``racestack mintime``: the minimum-time lap of the simulator's car, written to a folder.
+"""``racestack mintime``: the minimum-time lap of the car, written to a folder.
 
     racestack mintime [--for limit|cimpcc-line|raceline] --track T [--config F]
-                      [--v-max V] [--ds D] [--margin M] [--cache DIR] --out DIR
+                      [--v-max V] [--ds D] [--margin M] [--simulated-car] [--cache DIR]
+                      --out DIR
+
+The car is the configuration's ``[vehicle]`` (the car the planners believe);
+``--simulated-car`` (only with ``--for limit``) solves the limit of the car the simulator
+races instead (``[simulator.vehicle]`` when it overrides ``[vehicle]``: the bench's
+reference of a model-mismatch run).
 
 Which lap (``--for``, ``services.planner.mintime.requests``): ``limit`` (default) the car's
 limit, the bench's reference (top speed ``[planner.cimpcc] v_up_mps[0]``, or ``--v-max``,
@@ -157,7 +163,7 @@ def write_outputs(
     """Write mintime.json, raceline.csv and the figures; returns the JSON document."""
     doc = mintime_document(lap, track, vehicle, use)
     comments = (
-        f"minimum-time lap of the racestack simulator's car on {lap.track_name}: "
+        f"minimum-time lap of the car (preset {vehicle.preset}) on {lap.track_name}: "
         f"{lap.lap_time_s:.4f} s",
         f"v_max {lap.v_max_mps:g} m/s, tyres {lap.tyre_model}, ds {lap.ds_m:.4f} m, "
         f"margin {lap.margin_m:g} m, {CODE_VERSION}",
@@ -205,13 +211,16 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
                     help="which lap: the car's limit (default; the bench's reference), the "
                     "line cimpcc-line contours or the raceline baseline's line (the artefact "
                     "the planner of this configuration reads)")
-    ap.add_argument("--config", help="TOML configuration file (its [simulator.vehicle] car)")
+    ap.add_argument("--config", help="TOML configuration file (its [vehicle] car)")
     ap.add_argument("--track", help=f"{TRACK_SPEC_HELP} (default: the config's)")
     ap.add_argument("--v-max", dest="v_max", metavar="V",
                     help="top speed cap [m/s] (default: [planner.cimpcc] v_up_mps, 4.18)")
     ap.add_argument("--ds", metavar="D", help="grid spacing along the track [m] (default 0.1)")
     ap.add_argument("--margin", metavar="M",
                     help="footprint kept this far inside the boundaries [m] (default 0.02)")
+    ap.add_argument("--simulated-car", action="store_true",
+                    help="with --for limit: the limit of the car the simulator races "
+                    "([simulator.vehicle] when given) instead of [vehicle]")
     ap.add_argument("--cache", metavar="DIR", help="cache base folder the lap is stored in "
                     "(default $RACESTACK_CACHE, else ~/.cache/racestack)")
     ap.add_argument("--out", help="output folder (default runs/mintime-<time>)")
@@ -229,7 +238,14 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
         ds = _number(args.ds, "--ds")
         margin = _number(args.margin, "--margin")
         use = getattr(args, "use", LIMIT)
-        vehicle, settings = request_for(use, cfg.planner, cfg.simulator.vehicle)
+        simulated = getattr(args, "simulated_car", False)
+        if simulated and use != LIMIT:
+            raise MinTimeArgumentError(
+                f"--simulated-car: only with --for limit (the planner's {use} lap is always "
+                "solved for [vehicle])"
+            )
+        car = cfg.simulator.vehicle if simulated else cfg.vehicle
+        vehicle, settings = request_for(use, cfg.planner, car)
         given = [name for name, value in (("--v-max", v_max), ("--ds", ds),
                                           ("--margin", margin)) if value is not None]
         if given and use != LIMIT:

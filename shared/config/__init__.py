@@ -2,9 +2,16 @@
 
 from shared.config.base import ConfigError, Section
 from shared.config.bus import BusSettings
-from shared.config.root import RacestackConfig, TrackSettings, config_from_dict, load_config
+from shared.config.root import (
+    VEHICLE_MOVED,
+    RacestackConfig,
+    TrackSettings,
+    config_from_dict,
+    load_config,
+)
 
 __all__ = [
+    "VEHICLE_MOVED",
     "BusSettings",
     "ConfigError",
     "RacestackConfig",

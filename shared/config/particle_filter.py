@@ -3,8 +3,9 @@ localisation on the track's occupancy map (``services/localization_bridge/partic
 
 Frame: the filter estimates the REAR-AXLE pose in the map frame (the point and frame of
 ``vehicle/pose``). The lidar sits `lidar_x_m` ahead of the rear axle on the car's x axis; with
-the simulator that is ``[simulator.vehicle] lr_m + [simulator.lidar] mount_x_m`` (CoG to rear
-axle plus the mount ahead of the CoG): 0.17145 + 0.0 m with the defaults.
+the simulator that is the simulated car's ``lr_m`` (``[vehicle]``, or ``[simulator.vehicle]``
+when it overrides it) ``+ [simulator.lidar] mount_x_m`` (CoG to rear axle plus the mount ahead
+of the CoG): 0.17145 + 0.0 m with the defaults.
 
 Sensor model: a likelihood field (Thrun et al., Probabilistic Robotics, 6.4). Each used beam's
 end point is looked up in a precomputed table of ``log(z_hit exp(-d^2 / (2 sigma^2)) + z_rand)``

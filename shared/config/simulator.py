@@ -1,5 +1,8 @@
 """Settings of the simulator: the plant's vehicle, integration, actuation, sensors, seed.
 
+The plant's vehicle is ``[vehicle]`` unless ``[simulator.vehicle]`` overrides it (resolved by
+``shared.config.root``; a ``SimulatorSettings`` alone defaults to the F1TENTH gym's car).
+
 Defaults follow the F1TENTH gym (``../shared/docs/vehicle-and-vesc.md``) where it has a value;
 the rest are documented choices for a 1:10 car with a lidar localiser.
 """
@@ -82,7 +85,13 @@ class SimulatorSettings(Section):
     vesc_driver's ``vehicle/odom`` is the odometry (the simulator then publishes none).
     """
 
-    vehicle: DynamicVehicleParams = DynamicVehicleParams()
+    vehicle: DynamicVehicleParams = Field(
+        DynamicVehicleParams(),
+        description="Optional: the car the simulator races when it is not [vehicle] (a "
+        "model-mismatch experiment; the planners keep [vehicle]). Absent: [vehicle]. Its "
+        "keys change [vehicle]'s; a preset given here starts from that preset instead. The "
+        "defaults below are those of the preset f1tenth_gym",
+    )
     integration_step_s: float = Field(
         0.01,
         gt=0.0,

@@ -1,8 +1,11 @@
-"""Vehicle parameters of the SIMULATED car (the plant), separate from the planner's model.
+"""The car: geometry, mass, tyres and limits of the dynamic single-track model (``[vehicle]``).
 
-The planner has its own kinematic bicycle (``PlannerSettings.wheelbase_m``); the simulator
-uses the dynamic single-track model of ``services.simulator.dynamics`` with the parameters
-below. Keeping the two sets apart makes model mismatch a configuration change.
+One car for the stack: the planners (the minimum-time lines of ``cimpcc-line`` and of the
+raceline, their tyre-slip models, the tracker, the recovery ramp), the minimum-time lap and
+the simulator (``services.simulator.dynamics``) assume ``[vehicle]``. The simulator races
+another car only when ``[simulator.vehicle]`` overrides it, for model-mismatch experiments
+(``shared.config.root``). The paper's MPC methods keep their own kinematic bicycle
+(``[planner] wheelbase_m``).
 
 Two named presets (``preset = "..."``; any field given next to it overrides the preset):
 
@@ -74,7 +77,7 @@ VEHICLE_PRESETS: dict[str, dict[str, Any]] = {
 
 
 class DynamicVehicleParams(Section):
-    """Parameters of the dynamic single-track model of the simulated car.
+    """Parameters of the dynamic single-track model of the car.
 
     Tyre lateral force per axle i (front f, rear r), with normal load ``F_zi`` [N] and slip
     angle ``alpha_i`` [rad]:

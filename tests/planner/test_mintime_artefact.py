@@ -187,7 +187,7 @@ def test_racestack_up_makes_the_lap_before_it_starts_the_planner(
     cfg = load_config(str(line_config(tmp_path)))
     opts = up.UpOptions(config_path=None, run_dir=tmp_path / "run")
     assert up.run_up(cfg, opts) == 2
-    assert made == [(LINE, TRACK, cfg.planner, cfg.simulator.vehicle)]
+    assert made == [(LINE, TRACK, cfg.planner, cfg.vehicle)]
     assert "racestack up: solving ..." in capsys.readouterr().out
     # a lap that cannot exist: one line, nothing started
 
@@ -210,7 +210,7 @@ def test_the_named_command_makes_the_lap_the_planner_reads(
     cfg = load_config(str(config))
     track = load_track(cfg.track.source)
     with pytest.raises(MinTimeArtefactMissingError) as info:
-        make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+        make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
     command = info.value.for_config(str(config), cfg.track.source).command
     argv = shlex.split(command)
     assert argv[:2] == ["racestack", "mintime"]
@@ -221,13 +221,13 @@ def test_the_named_command_makes_the_lap_the_planner_reads(
     assert printed.err == ""
     assert (out / "mintime.json").is_file() and (out / "raceline.csv").is_file()
     # exactly the planner's lap: read back (no solve), and the planner builds on it
-    car, settings = line_request(cfg.planner, cfg.simulator.vehicle)
+    car, settings = line_request(cfg.planner, cfg.vehicle)
     lap = load_min_time_lap(track, car, settings, use=LINE)
     assert lap.cache_hit and lap.success
-    planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+    planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
     assert planner.reference.speed.lap_time_s == pytest.approx(lap.lap_time_s, rel=0.02)
     # the tools' ensure_artefacts finds it too (nothing to solve)
-    (again,) = ensure_artefacts(None, track, cfg.planner, cfg.simulator.vehicle)
+    (again,) = ensure_artefacts(None, track, cfg.planner, cfg.vehicle)
     assert again.cache_hit and again.lap_time_s == lap.lap_time_s
 
 
@@ -296,7 +296,7 @@ CONFIGS = {
             "cimpcc_line": {"grip_fraction": 0.93, "v_max_mps": 4.5, "line_margin_m": 0.05},
             "raceline": {"v_max_mps": 4.0, "ds_m": 0.2, "min_time_margin_m": 0.04},
         },
-        "simulator": {"vehicle": {"mu": 0.9, "steering_max_rad": 0.33}},
+        "vehicle": {"mu": 0.9, "steering_max_rad": 0.33},
     },
 }
 
@@ -304,7 +304,7 @@ CONFIGS = {
 @pytest.mark.parametrize("name", list(CONFIGS))
 def test_the_requests_are_the_laps_solved_before(name: str) -> None:
     cfg = config_from_dict(CONFIGS[name], name)
-    car = cfg.simulator.vehicle
+    car = cfg.vehicle
     track = load_track(TRACK)
     for request, previous in (
         (line_request, _previous_line),
@@ -340,21 +340,40 @@ def _cli_request(monkeypatch, argv: list[str]) -> tuple[Track, DynamicVehiclePar
 def test_the_cli_makes_the_same_laps(tmp_path: Path, monkeypatch, capsys) -> None:
     config = tmp_path / "c.toml"
     config.write_text('[planner.cimpcc_line]\ngrip_fraction = 0.9\n'
-                      '[simulator.vehicle]\nmu = 0.95\n')
+                      '[vehicle]\nmu = 0.95\n')
     cfg = load_config(str(config))
     base = ["--config", str(config), "--track", TRACK, "--out", str(tmp_path / "o")]
     for use, request in ((LIMIT, limit_request), (LINE, line_request),
                          (RACELINE, raceline_request)):
         track, car, settings = _cli_request(monkeypatch, [*base, "--for", use])
-        want = request(cfg.planner, cfg.simulator.vehicle)
+        want = request(cfg.planner, cfg.vehicle)
         assert store.cache_key(track, car, settings) == store.cache_key(track, *want), use
     # no --for: the limit, as before (the configured top speed, default grid and margin)
     track, car, settings = _cli_request(monkeypatch, base)
-    assert (car, settings) == _previous_limit(cfg.planner, cfg.simulator.vehicle)
+    assert (car, settings) == _previous_limit(cfg.planner, cfg.vehicle)
     # --v-max overrides the limit's top speed only
     _, _, settings = _cli_request(monkeypatch, [*base, "--v-max", "5"])
     assert settings == MinTimeSettings(v_max_mps=5.0)
     capsys.readouterr()
+
+
+def test_the_cli_solves_for_vehicle_or_on_request_the_simulated_car(
+    tmp_path: Path, monkeypatch, capsys
+) -> None:
+    config = tmp_path / "m.toml"
+    config.write_text('[vehicle]\nmu = 0.95\n[simulator.vehicle]\nmu = 0.8\n')
+    cfg = load_config(str(config))
+    base = ["--config", str(config), "--track", TRACK, "--out", str(tmp_path / "o")]
+    _, car, _ = _cli_request(monkeypatch, base)
+    assert car == cfg.vehicle and car.mu == 0.95  # the planners' car by default
+    _, car, _ = _cli_request(monkeypatch, [*base, "--simulated-car"])
+    assert car == cfg.simulator.vehicle and car.mu == 0.8  # the bench's reference car
+    _, car, _ = _cli_request(monkeypatch, [*base, "--for", LINE])
+    assert car == line_request(cfg.planner, cfg.vehicle).car
+    capsys.readouterr()
+    assert mintime_cli.main([*base, "--for", LINE, "--simulated-car"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--simulated-car: only with --for limit" in err, err
 
 
 def test_the_planner_s_laps_take_no_overrides(tmp_path: Path, capsys) -> None:

@@ -280,8 +280,8 @@ def _race(track: Track, laps: int):
     from shared.config import load_config
 
     cfg = load_config(None)
-    ensure_artefacts("raceline", track, cfg.planner, cfg.simulator.vehicle)  # the tools' job
-    planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.simulator.vehicle)
+    ensure_artefacts("raceline", track, cfg.planner, cfg.vehicle)  # the tools' job
+    planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
     run = run_method("raceline", planner, track, cfg.simulator, LoopOptions(laps=laps))
     return planner, run
 

@@ -261,7 +261,7 @@ def test_the_track_extracted_from_map416_races_clean(shared_tracks: Path) -> Non
     cfg = load_config(None)
     line = cfg.planner.raceline.model_copy(update={"line": "min_curvature"})
     settings = cfg.planner.model_copy(update={"method": "raceline", "raceline": line})
-    planner = make_planner(track, settings, cfg.curvature, vehicle=cfg.simulator.vehicle)
+    planner = make_planner(track, settings, cfg.curvature, vehicle=cfg.vehicle)
     margins = []
 
     def check(res) -> None:

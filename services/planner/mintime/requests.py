@@ -81,7 +81,7 @@ def line_request(
     settings: PlannerSettings, car: DynamicVehicleParams | None = None
 ) -> LapRequest:
     """The lap ``cimpcc-line`` contours (module docstring) for `car` (None: the F1TENTH
-    gym's, the simulator's default car) with the planner `settings`."""
+    gym's, the default ``[vehicle]``) with the planner `settings`."""
     line = settings.cimpcc_line
     lo, hi = settings.bounds.delta_rad
     planned = planning_vehicle(car or F1TENTH_GYM, (lo, hi))

@@ -195,8 +195,8 @@ class Planner:
                 (the problem's reference path is then the planner's).
             reference: the path to contour (default: the method's, ``method_reference``).
             vehicle: the car the minimum-time line is solved for and whose tyre slip and
-                speed loop the model has (default the F1TENTH gym's, the simulator's
-                default car); unused by the paper's kinematic methods.
+                speed loop the model has (default the F1TENTH gym's, the
+                default ``[vehicle]``); unused by the paper's kinematic methods.
         """
         self.track = track
         self.settings = settings

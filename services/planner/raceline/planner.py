@@ -34,7 +34,8 @@ acceleration-based pursuit is the same idea.)
 ``RacelinePlanner`` has the ``Planner`` interface the bench's closed loop uses (``step``,
 ``reset``, ``settings``), so the bench races it like the MPC methods. It is given the car
 (``vehicle=``, a ``DynamicVehicleParams``; None: ``shared.config.vehicle.F1TENTH_GYM``,
-the simulator's default car). Its lap times are in the README ("Laps at the limit").
+the default ``[vehicle]``); callers pass the configuration's car, ``cfg.vehicle``. Its lap
+times are in the README ("Laps at the limit").
 """
 
 from __future__ import annotations

@@ -15,10 +15,16 @@ bench's variants of them:
 The planners come from one ``PlannerPool``: the MPC methods whose problems have the same
 structure share one built (and compiled) problem and solver.
 
+The cars: the planners (and the minimum-time lines they race on) are built for
+``[vehicle]``; the simulator races ``cfg.simulator.vehicle``, the same car unless
+``[simulator.vehicle]`` overrides it (a model mismatch, said on stderr). results.json's meta
+records both (``vehicle``, ``simulator_vehicle``).
+
 Reference: unless ``--no-reference``, the bench first computes (or loads from the cache)
 the minimum-time lap of its simulated car on the track (``services.planner.mintime.ocp``, top
 speed the planners' ``[planner.cimpcc] v_up_mps[0]``) and reports every method's mean lap
-over it (``ratio_to_min_time`` in results.json, the last row of the table).
+over it (``ratio_to_min_time`` in results.json, the last row of the table): the limit of
+the car whose laps it judges.
 """
 
 from __future__ import annotations
@@ -273,6 +279,17 @@ def min_time_reference(
     }
 
 
+def mismatch_note(cfg: RacestackConfig) -> str:
+    """One line saying that the simulator races another car than the planners believe."""
+    plan, sim = cfg.vehicle, cfg.simulator.vehicle
+    differ = [k for k in type(plan).model_fields
+              if k != "preset" and getattr(plan, k) != getattr(sim, k)]
+    shown = (", ".join(differ[:6]) + (", ..." if len(differ) > 6 else "")) or "the preset"
+    return (f"model mismatch: the planners believe [vehicle] (preset {plan.preset}), the "
+            f"simulator races [simulator.vehicle] (preset {sim.preset}; differs in {shown}); "
+            "the reference is the simulated car's limit")
+
+
 def run_bench(
     cfg: RacestackConfig,
     track_spec: str,
@@ -298,8 +315,8 @@ def run_bench(
         ref_doc = min_time_reference(track, cfg, ref_lines)
         timings["min-time reference"] = time.perf_counter() - t_start
     for name in methods:  # the minimum-time laps the planners read (made once, cached)
-        ensure_artefacts(name, track, cfg.planner, cfg.simulator.vehicle)
-    pool = PlannerPool(track, cfg.simulator.vehicle)
+        ensure_artefacts(name, track, cfg.planner, cfg.vehicle)
+    pool = PlannerPool(track, cfg.vehicle)  # the planners' car; the simulator races its own
     # built first: a track that allows no line is an error before anything races
     planners = {name: pool.planner(cfg.planner, name, cfg.curvature) for name in methods}
     profile = track_profile(track, cfg.curvature)
@@ -351,6 +368,7 @@ def run_bench(
         "compute_delay_s": opts.compute_delay_s,
         "planner_dt_s": cfg.planner.dt_s,
         "horizon_steps": cfg.planner.horizon_steps,
+        "vehicle": cfg.vehicle.model_dump(),
         "simulator_vehicle": cfg.simulator.vehicle.model_dump(),
         "wall_time_s": {k: round(v, 2) for k, v in timings.items()},
         "wall_time_total_s": round(time.perf_counter() - t_start, 2),
@@ -449,6 +467,8 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
         return 2
     if tuned is not None:
         print(tuned.describe(), file=sys.stderr)
+    if cfg.simulates_another_car:
+        print(mismatch_note(cfg), file=sys.stderr)
     opts = LoopOptions(
         laps=args.laps, delay_mode=args.delay, compute_delay_s=args.compute_delay_ms / 1e3,
         estimator=getattr(args, "estimator", "truth"), localization=cfg.localization,

@@ -117,7 +117,7 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
         return _cannot_start(f"{problem}; give --run-dir a folder you can write")
     if "planner" in opts.services:  # the planner process only reads its minimum-time lap
         try:
-            ensure_artefacts(cfg.planner.method, track, cfg.planner, cfg.simulator.vehicle,
+            ensure_artefacts(cfg.planner.method, track, cfg.planner, cfg.vehicle,
                              progress=_say)
         except MinTimeError as exc:
             remove_empty_dirs(created)

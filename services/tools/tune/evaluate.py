@@ -211,7 +211,7 @@ class Evaluator:
         self.base_data = base_data
         self.settings = settings
         self.base_cfg = config_from_dict(base_data, "--config")
-        self._pool = PlannerPool(track, self.base_cfg.simulator.vehicle)
+        self._pool = PlannerPool(track, self.base_cfg.vehicle)
 
     def config_for(self, params: Params) -> tuple[Overlay, RacestackConfig]:
         """The overlay of `params` (method weight tables in full, ``complete_overlay``) and
@@ -224,7 +224,7 @@ class Evaluator:
         """A planner of the method with `cfg`'s settings (MPC problems of the same
         structure built once, ``PlannerPool``; the minimum-time lap it races on made first,
         once per line setting)."""
-        ensure_artefacts(self.space.method, self.track, cfg.planner, cfg.simulator.vehicle)
+        ensure_artefacts(self.space.method, self.track, cfg.planner, cfg.vehicle)
         return self._pool.planner(cfg.planner, self.space.method, cfg.curvature)
 
     def run_seed(self, planner: PlannerLike, cfg: RacestackConfig, seed: int
