@@ -22,11 +22,13 @@ taken as a mismatch.
 
 from __future__ import annotations
 
+import difflib
 import tomllib
+import typing
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import BaseModel, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
 from shared.config.base import ConfigError, Section
@@ -153,9 +155,34 @@ def _format_errors(source: str, exc: ValidationError) -> str:
             lines.append(f"{source}: {msg}")
             continue
         if err["type"] == "extra_forbidden":
-            msg = "unknown key"
+            msg = "unknown key" + _did_you_mean(err["loc"])
         lines.append(f"{source}: {loc}: {msg}")
     return "\n".join(lines)
+
+
+def _section_at(path: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The section class at dotted `path` from the root (None: not a section)."""
+    model: type[BaseModel] = RacestackConfig
+    for part in path:
+        field = model.model_fields.get(str(part))
+        if field is None:
+            return None
+        candidates = [field.annotation, *typing.get_args(field.annotation)]
+        nxt = next((c for c in candidates
+                    if isinstance(c, type) and issubclass(c, BaseModel)), None)
+        if nxt is None:
+            return None
+        model = nxt
+    return model
+
+
+def _did_you_mean(loc: tuple[Any, ...]) -> str:
+    """``; did you mean 'x'?`` for an unknown key close to a key of its section, else ''."""
+    section = _section_at(tuple(loc[:-1]))
+    if section is None:
+        return ""
+    close = difflib.get_close_matches(str(loc[-1]), list(section.model_fields), n=1)
+    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> RacestackConfig:

@@ -65,3 +65,16 @@ def test_toml_file(tmp_path: Path) -> None:
         load_config(tmp_path / "broken.toml")
     with pytest.raises(ConfigError, match="cannot read"):
         load_config(tmp_path / "absent.toml")
+
+
+def test_a_typo_d_key_gets_a_did_you_mean() -> None:
+    from shared.config import ConfigError, config_from_dict
+
+    with pytest.raises(ConfigError, match=r"planner\.horizon_step: unknown key; did you mean "
+                       r"'horizon_steps'\?"):
+        config_from_dict({"planner": {"horizon_step": 3}})
+    with pytest.raises(ConfigError, match=r"planer: unknown key; did you mean 'planner'\?"):
+        config_from_dict({"planer": {}})
+    with pytest.raises(ConfigError) as err:  # nothing close: no guess
+        config_from_dict({"planner": {"zzzz": 1}})
+    assert str(err.value).endswith("planner.zzzz: unknown key")
