@@ -212,6 +212,37 @@ class LiveLine:
             self._shown = False
 
 
+@dataclass
+class OffTrackTally:
+    """The off-track events of a race as ``lap_events`` tells them: every excursion of the
+    run (``off_track`` events) and those of the out lap (before timing ``start``ed), so the
+    lap table's total agrees with its rows (a lap's own count is in its ``lap`` event)."""
+
+    started: bool = False
+    total: int = 0
+    out_lap: int = 0
+
+    def see(self, ev: LapEvent) -> None:
+        """Count one lap event."""
+        if ev.kind == LapKindName.START:
+            self.started = True
+        elif ev.kind == LapKindName.OFF_TRACK:
+            self.total += 1
+            if not self.started:
+                self.out_lap += 1
+
+    def run(self, method: str, laps: list[LapRecord], solve_ms: list[float], requested: int,
+            extra: dict | None = None) -> MethodRun:
+        """The race as a ``MethodRun`` with the whole run's off-track events: never fewer
+        than the laps' own plus the out lap's."""
+        in_laps = sum(lap.off_track_events for lap in laps)
+        return MethodRun(
+            method, laps, Trace(), solve_ms, 0, requested, extra=extra or {},
+            run_off_track_events=max(self.total, in_laps + self.out_lap),
+            out_lap_off_track_events=self.out_lap,
+        )
+
+
 def _connect_line(log_path: Path | None, timeout_s: float) -> str | None:
     """The ``rerun --connect ...`` line telemetry wrote into its log (None if absent)."""
     deadline = time.monotonic() + timeout_s
@@ -241,6 +272,7 @@ def _race(
     with Supervisor(log_dir=run_dir / "logs") as sup:
         node = Launcher(bus)
         lap_events = node.subscribe(LAP, queue_size=1000)
+        tally = OffTrackTally()
         solve_ms: list[float] = []  # appended on the Zenoh thread (list.append is atomic)
         latest: dict[str, float] = {}  # the newest plan's progress and speed (Zenoh thread)
 
@@ -290,6 +322,7 @@ def _race(
                 return _report_failure(sup, bus, opts, "race")
             for ev in lap_events.drain():
                 last_progress = time.monotonic()
+                tally.see(ev)
                 if ev.kind == LapKindName.LAP and ev.lap_time_s is not None:
                     laps.append(
                         LapRecord(
@@ -322,7 +355,7 @@ def _race(
                 break
             time.sleep(0.05)
         live.clear()
-        run = MethodRun(cfg.planner.method, laps, Trace(), list(solve_ms), 0, opts.laps,
+        run = tally.run(cfg.planner.method, laps, list(solve_ms), opts.laps,
                         extra={"aborted": "interrupted"} if interrupted else {})
         doc = results_document(track.name, track.length_m, [run])
         if laps or not interrupted:
