@@ -40,6 +40,7 @@ LAP = "lap"
 VESC_STATE = "vesc/state"
 SIM_TRUTH = "sim/truth"
 SIM_CONTROL = "sim/control"
+TELEPORT = "vehicle/teleport"
 EVENTS_LOG = "events/log"
 #: Liveliness tokens: racestack/<car>/alive/<service>.
 ALIVE = "alive"
@@ -58,6 +59,7 @@ TOPIC_TYPES: MappingProxyType[str, str] = MappingProxyType(
         VESC_STATE: "vesc_state",
         SIM_TRUTH: "sim_truth",
         SIM_CONTROL: "sim_control",
+        TELEPORT: "teleport",
         EVENTS_LOG: "log_event",
     }
 )
@@ -147,6 +149,11 @@ class Keys:
     def sim_control(self) -> str:
         """Reset / pause / resume requests to the simulator (``SimControl``)."""
         return self.key(SIM_CONTROL)
+
+    @property
+    def teleport(self) -> str:
+        """The car put elsewhere: a simulator reset or an operator (``Teleport``)."""
+        return self.key(TELEPORT)
 
     @property
     def events_log(self) -> str:

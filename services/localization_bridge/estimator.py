@@ -20,6 +20,11 @@ Rules, each counted in ``counts`` (by reason) and returned as a ``Verdict``:
 - pose drop-out: the newest applied pose older than ``degraded_after_s`` makes the estimate
   ``degraded``, older than ``invalid_after_s`` makes it invalid; the next pose then
   re-initialises the filter (``reinit``), with the speed and yaw rate it had.
+- a teleport (``teleport``: the car was put elsewhere, announced by the simulator or an
+  operator) re-initialises the filter at once at the announced pose and speed (yaw rate 0,
+  the gyro bias kept), without waiting for the gate: odometry and IMU stamped after it are
+  re-applied; a pose, odometry or IMU reading stamped at or before it is the car before the
+  teleport and is rejected (``<kind>_before_teleport``).
 - without ``latency_compensation`` every measurement is applied at its arrival (``now_s``),
   as a filter that ignores latency would (the benchmark's comparison).
 """
@@ -56,6 +61,7 @@ class Verdict(StrEnum):
     APPLIED = "applied"
     INITIALISED = "initialised"  #: the first pose started the filter
     REINIT = "reinit"  #: the filter restarted at this pose (after a drop-out or a gated run)
+    TELEPORT = "teleport"  #: the filter restarted at an announced teleport
     GATED = "gated"
     FUTURE = "future"
     STALE = "stale"
@@ -134,6 +140,7 @@ class FusedEstimator:
         self._order = 0
         self._gated_run = 0
         self._last_gated: np.ndarray | None = None
+        self.teleport_stamp_s: float | None = None
 
     @property
     def initialised(self) -> bool:
@@ -146,6 +153,9 @@ class FusedEstimator:
         if not math.isfinite(t_s) or t_s > now_s + st.future_tolerance_s:
             self.counts[f"{what}_future"] += 1
             return Verdict.FUTURE
+        if self.teleport_stamp_s is not None and t_s <= self.teleport_stamp_s:
+            self.counts[f"{what}_before_teleport"] += 1
+            return Verdict.STALE
         oldest = now_s - st.history_s
         if t_s < oldest or (self.base is not None and t_s < self.base.t_s):
             self.counts[f"{what}_stale"] += 1
@@ -242,6 +252,37 @@ class FusedEstimator:
         )
         return Verdict.APPLIED
 
+    def teleport(
+        self,
+        t_s: float,
+        x_m: float,
+        y_m: float,
+        yaw_rad: float,
+        speed_mps: float,
+        now_s: float,
+    ) -> Verdict:
+        """The car was put at rear-axle pose (`x_m`, `y_m` [m], `yaw_rad` [rad]) moving at
+        `speed_mps` [m/s] at `t_s` [s]: re-initialise there now (module docstring). The
+        position and yaw start with the ``init_*`` covariance of the settings."""
+        st = self.settings
+        if not math.isfinite(t_s) or t_s > now_s + st.future_tolerance_s:
+            self.counts["teleport_future"] += 1
+            return Verdict.FUTURE
+        if t_s < now_s - st.history_s or (
+            self.teleport_stamp_s is not None and t_s <= self.teleport_stamp_s
+        ):
+            self.counts["teleport_stale"] += 1
+            return Verdict.STALE
+        if not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad, speed_mps)):
+            self.counts["teleport_not_finite"] += 1
+            return Verdict.STALE
+        t = self._stamp(t_s, now_s)
+        z = np.array([x_m, y_m, wrap_angle(yaw_rad)])
+        self._restart(t, z, None, speed_mps=speed_mps, yaw_rate_radps=0.0)
+        self.teleport_stamp_s = t_s  # the readings' own stamps are compared with it
+        self.counts["teleport_applied"] += 1
+        return Verdict.TELEPORT
+
     # ------------------------------------------------------------------ output
     def estimate(self, now_s: float) -> Estimate:
         """The state predicted to `now_s` [s] (at most ``max_prediction_s`` past the newest
@@ -318,13 +359,26 @@ class FusedEstimator:
             del self.events[:n]
             del self.beliefs[:n]
 
-    def _restart(self, t_s: float, z: np.ndarray, R: np.ndarray) -> None:
-        """Start the filter at pose `z` taken at `t_s`, keeping the later odometry and IMU."""
+    def _restart(
+        self,
+        t_s: float,
+        z: np.ndarray,
+        R: np.ndarray | None,
+        speed_mps: float | None = None,
+        yaw_rate_radps: float | None = None,
+    ) -> None:
+        """Start the filter at pose `z` taken at `t_s` (covariance `R`, None: the settings'
+        init stds), keeping the later odometry and IMU. Speed and yaw rate: the given ones,
+        else those the filter had (before the first pose: the newest readings)."""
         if self.base is not None:
             last = self.beliefs[-1] if self.beliefs else self.base
             speed, rate, bias = last.s[Ekf.V], last.s[Ekf.R], last.s[Ekf.BIAS]
         else:
             speed, rate, bias = self._start_speed, self._start_yaw_rate, 0.0
+        if speed_mps is not None:
+            speed = speed_mps
+        if yaw_rate_radps is not None:
+            rate = yaw_rate_radps
         later = [e for e in self.events if e.t_s > t_s and e.kind is not _Kind.POSE]
         self.base = initial_belief(
             t_s, float(z[0]), float(z[1]), float(z[2]), self.noise, speed, rate, bias, R

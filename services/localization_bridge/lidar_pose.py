@@ -10,8 +10,9 @@ longer than ``MAX_GAP_S`` is predicted as ``MAX_GAP_S`` (the filter's noise then
 cover the rest).
 
 Dropped scans are counted in ``counts`` (a ``scan_check`` reason, ``scan_out_of_order``,
-or ``pf_not_converged`` / ``pf_lost`` for a scan used by the filter whose estimate is not
-handed on).
+``scan_before_teleport``, or ``pf_not_converged`` / ``pf_lost`` for a scan used by the
+filter whose estimate is not handed on). A teleport (``place``) starts the particle cloud
+again around the announced pose; scans stamped at or before it are dropped.
 """
 
 from __future__ import annotations
@@ -70,11 +71,20 @@ class LidarPoseSource:
         self.counts: Counter[str] = Counter()
         self.layout: ScanLayout | None = None
         self.t_last: float | None = None
+        self.teleport_t: float | None = None
         self.speed_mps = 0.0
         self._gyro_sum = 0.0
         self._gyro_n = 0
         self._gyro_last: float | None = None
         self._odom_rate: float | None = None
+
+    def place(self, t_s: float, x_m: float, y_m: float, yaw_rad: float, speed_mps: float) -> None:
+        """A teleport at `t_s` [s]: the cloud around the rear-axle pose (`x_m`, `y_m` [m],
+        `yaw_rad` [rad]) with the filter's init stds, moving at `speed_mps` [m/s]."""
+        self.pf.init_pose(x_m, y_m, yaw_rad)
+        self.t_last = self.teleport_t = t_s
+        self.speed_mps = speed_mps
+        self._gyro_sum, self._gyro_n, self._gyro_last = 0.0, 0, None
 
     def odom(self, speed_mps: float, yaw_rate_radps: float | None = None) -> None:
         """The newest wheel speed [m/s] (and the odometry's yaw rate [rad/s], if any)."""
@@ -118,6 +128,9 @@ class LidarPoseSource:
             self.counts[reason] += 1
             return None
         t = scan.stamp_s
+        if self.teleport_t is not None and t <= self.teleport_t:
+            self.counts["scan_before_teleport"] += 1
+            return None
         if self.t_last is not None and t <= self.t_last:
             self.counts["scan_out_of_order"] += 1
             return None

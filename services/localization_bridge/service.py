@@ -17,6 +17,12 @@ predicted to the wall clock every period. One lock guards the core. The ``State`
   ``degraded_after_s``) and the filter's rejections (future / stale stamps, gated poses,
   dropped scans) are said on ``events/log`` (rate-limited, with counts).
 
+A ``vehicle/teleport`` (the simulator's reset or off-track marshal, or an operator placing
+the car) re-initialises the filter at once at the announced pose (``FusedEstimator.teleport``;
+with the lidar, the particle filter too, on the scan worker before its next scan), so the
+next ``state`` is at the new pose instead of the gate holding the old one; readings stamped
+at or before the teleport are dropped (counted, not reported as rejections).
+
 With ``filter = "passthrough"`` the newest pose is predicted to now by a unicycle
 (``fusion.StateAssembler``), at the same fixed rate. A State of its own that fails
 validation is not sent: it is counted in ``bus.faults`` and reported on ``events/log``."""
@@ -28,14 +34,14 @@ import math
 import threading
 from collections import Counter
 
-from services.localization_bridge.estimator import Estimate, FusedEstimator
+from services.localization_bridge.estimator import Estimate, FusedEstimator, Verdict
 from services.localization_bridge.fusion import StateAssembler
 from services.localization_bridge.lidar_pose import LidarPoseSource, start_pose
 from shared.bus import Bus
 from shared.config import RacestackConfig
 from shared.config.localization import LocalizationSettings
-from shared.keys import EVENTS_LOG, IMU, ODOM, POSE, SCAN, STATE
-from shared.messages import Imu, LogEvent, LogLevelName, Odom, Pose, Scan, State
+from shared.keys import EVENTS_LOG, IMU, ODOM, POSE, SCAN, STATE, TELEPORT
+from shared.messages import Imu, LogEvent, LogLevelName, Odom, Pose, Scan, State, Teleport
 from shared.messages.records import MAX_POS_M, MAX_SPEED_MPS, MAX_STEER_RAD, MAX_YAW_RATE_RADPS
 from shared.service import Service, publishes, subscribes
 from shared.track import Track, load_track, occupancy_for
@@ -69,6 +75,7 @@ class BridgeService(Service):
         subscribes(SCAN, Scan),  # only with pose_source = "lidar"
         subscribes(ODOM, Odom),
         subscribes(IMU, Imu),
+        subscribes(TELEPORT, Teleport),
         publishes(STATE, State),
         publishes(EVENTS_LOG, LogEvent),
     )
@@ -87,6 +94,7 @@ class BridgeService(Service):
         self.published = 0
         self._said: Counter[str] = Counter()
         self._quality = "none"
+        self._place: Teleport | None = None  #: a teleport for the lidar's filter (scan worker)
         if settings.pose_source == "lidar":
             if track is None:
                 raise ValueError("pose_source = 'lidar' needs the track (its occupancy map)")
@@ -97,6 +105,7 @@ class BridgeService(Service):
             self.inputs = self.subscribe_channel(POSE, capacity=settings.pose_queue)
         self.subscribe(ODOM, self.on_odom)
         self.subscribe(IMU, self.on_imu)
+        self.subscribe(TELEPORT, self.on_teleport)
 
     @classmethod
     def create(cls, cfg: RacestackConfig, args: argparse.Namespace, bus: Bus) -> BridgeService:
@@ -128,13 +137,34 @@ class BridgeService(Service):
         """An external pose into the filter."""
         now = self.wall_clock()
         with self._lock:
-            self.newest_pose = pose
+            teleported = self.core.teleport_stamp_s
+            if teleported is None or pose.stamp_s > teleported:
+                self.newest_pose = pose
             self.core.pose(pose.stamp_s, pose.x_m, pose.y_m, pose.yaw_rad, pose.cov, now)
+
+    def on_teleport(self, msg: Teleport) -> None:
+        """The car was put elsewhere: the filter starts again at the announced pose."""
+        now = self.wall_clock()
+        with self._lock:
+            verdict = self.core.teleport(msg.stamp_s, msg.x_m, msg.y_m, msg.yaw_rad,
+                                         msg.speed_mps, now)
+            if verdict is not Verdict.TELEPORT:
+                return
+            self.newest_pose = Pose(stamp_s=msg.stamp_s, x_m=msg.x_m, y_m=msg.y_m,
+                                    yaw_rad=msg.yaw_rad)
+            if self.lidar is not None:
+                self._place = msg
+        self.say(LogLevelName.INFO, f"teleport: state re-initialised at ({msg.x_m:.2f}, "
+                 f"{msg.y_m:.2f}) m, {msg.yaw_rad:.2f} rad", limit="teleport")
 
     def on_scan(self, scan: Scan) -> None:
         """A scan through the particle filter; its pose into the EKF."""
         assert self.lidar is not None
         with self._lock:
+            place, self._place = self._place, None
+            if place is not None:
+                self.lidar.place(place.stamp_s, place.x_m, place.y_m, place.yaw_rad,
+                                 place.speed_mps)
             bias = self.core.estimate(self.wall_clock()).bias_radps
             motion = self.lidar.motion()
         got = self.lidar.scan(scan, bias, motion)  # the filter's update, outside the lock
@@ -217,9 +247,12 @@ class BridgeService(Service):
 
     def tick(self) -> None:
         """The watchdog: say the rejections that grew since the last line."""
-        ok = {"pose_applied", "pose_initialised", "scans_used"}
+        ok = {"pose_applied", "pose_initialised", "scans_used", "teleport_applied"}
         now = self.counts()
-        grown = {k: v - self._said[k] for k, v in now.items() if k not in ok and v > self._said[k]}
+        grown = {
+            k: v - self._said[k] for k, v in now.items()
+            if k not in ok and not k.endswith("_before_teleport") and v > self._said[k]
+        }
         if grown and self.say(
             LogLevelName.WARNING,
             "rejected inputs: " + ", ".join(f"{k} {v}" for k, v in sorted(grown.items())),

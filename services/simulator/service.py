@@ -24,6 +24,11 @@ Nothing it publishes is outside its own contract, and it never dies of its own o
   angle outside the core's canonical [-pi/2, pi/2] is counted (reason ``slip_not_canonical``)
   and published wrapped; it is the same velocity direction, so the car goes on.
 
+Every time it puts the car elsewhere (a ``sim/control`` reset, a fault reset, the
+off-track marshal below) it says so on ``vehicle/teleport`` (``Teleport``: the new rear-axle
+pose and speed, stamped at the instant of the teleport), so a pose filter starts again
+there at once instead of gating the jump; its sensors drop what they captured before.
+
 When the car's footprint leaves the track, ``[simulator] off_track_policy`` decides:
 ``"continue"`` (default) keeps driving; ``"stop"`` ignores drive commands from then on, so
 the command timeout brakes the car to rest like a VESC whose commands stopped, until a
@@ -50,11 +55,23 @@ from services.simulator import LapEvent as TimerEvent
 from services.simulator import LapTimer, SensorSuite, Simulator, StepResult
 from services.simulator.laps import centreline_pose
 from services.simulator.limits import state_fault
+from services.simulator.state import Pose2D, rear_axle
 from services.simulator.vesc_actuation import VescActuation
 from shared.angles import wrap_angle
 from shared.bus import Bus, LatestSlot
 from shared.config import RacestackConfig
-from shared.keys import DRIVE_CMD, EVENTS_LOG, IMU, LAP, ODOM, POSE, SCAN, SIM_CONTROL, SIM_TRUTH
+from shared.keys import (
+    DRIVE_CMD,
+    EVENTS_LOG,
+    IMU,
+    LAP,
+    ODOM,
+    POSE,
+    SCAN,
+    SIM_CONTROL,
+    SIM_TRUTH,
+    TELEPORT,
+)
 from shared.messages import (
     DriveCmd,
     Imu,
@@ -68,6 +85,7 @@ from shared.messages import (
     SimActionName,
     SimControl,
     SimTruth,
+    Teleport,
 )
 from shared.service import Service, publishes, subscribes
 from shared.track import Track, load_track, occupancy_for
@@ -109,6 +127,7 @@ class SimulatorService(Service):
         publishes(SCAN, Scan),
         publishes(SIM_TRUTH, SimTruth),
         publishes(LAP, LapEvent),
+        publishes(TELEPORT, Teleport),
         publishes(EVENTS_LOG, LogEvent),
     )
     EVENT_INTERVAL_S = FAULT_REPORT_INTERVAL_S
@@ -137,6 +156,7 @@ class SimulatorService(Service):
         self.pub_scan = self.publisher(SCAN)
         self.pub_truth = self.publisher(SIM_TRUTH)
         self.pub_lap = self.publisher(LAP)
+        self.pub_teleport = self.publisher(TELEPORT)
         self.commands: LatestSlot[DriveCmd] = LatestSlot()
         self.controls = self.subscribe(SIM_CONTROL, queue_size=16)
         #: actuation = "fake_vesc": commands come from the vesc_driver's serial frames
@@ -157,6 +177,7 @@ class SimulatorService(Service):
         self.skipped_s = 0.0  #: wall time skipped in all [s]
         self.fault_resets = 0  #: resets because the car's state left the contract
         self.off_track_actions = 0  #: off-track events the policy acted on (or let pass)
+        self.teleports = 0  #: times the car was put elsewhere (each said on vehicle/teleport)
         self._next_truth = 0.0
         self.reset()
 
@@ -178,11 +199,23 @@ class SimulatorService(Service):
         """Wall-clock stamp [s] of simulation time `t_sim`."""
         return self.t0_wall + t_sim
 
+    def teleport(self, pose: Pose2D) -> None:
+        """Put the car at rest at CoG `pose` now, restart the sensors, and say so on
+        ``vehicle/teleport`` (the rear-axle pose, as the pose sensor reports it)."""
+        t = self.sim.t_s
+        self.sim.reset(pose, speed_mps=0.0, t_s=t)
+        self.sensors.reset()
+        self.teleports += 1
+        st = self.sim.state
+        x, y, yaw = rear_axle(st.x_m, st.y_m, st.yaw_rad, self.cfg.simulator.vehicle.lr_m)
+        self.pub_teleport.try_put(
+            stamp_s=self.stamp(t), x_m=x, y_m=y, yaw_rad=wrap_angle(yaw), speed_mps=0.0
+        )
+
     def reset(self) -> None:
         """Put the car at rest just behind the start line (and release an off-track stop)."""
         t = self.sim.t_s
-        self.sim.reset(centreline_pose(self.track, START_OFFSET_M), speed_mps=0.0, t_s=t)
-        self.sensors.reset()
+        self.teleport(centreline_pose(self.track, START_OFFSET_M))
         self.timer.reset()
         self.stopped = False
         st = self.sim.state
@@ -214,9 +247,7 @@ class SimulatorService(Service):
                 "commands are ignored until sim/control reset or resume",
             )
         elif policy == "reset_to_centreline":
-            pose = centreline_pose(self.track, ev.s_m)
-            self.sim.reset(pose, speed_mps=0.0, t_s=self.sim.t_s)
-            self.sensors.reset()
+            self.teleport(centreline_pose(self.track, ev.s_m))
             self.say(
                 LogLevelName.WARNING,
                 f"{where}: car put back on the centreline at rest "

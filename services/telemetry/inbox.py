@@ -18,11 +18,11 @@ import time
 from collections.abc import Callable
 from typing import NamedTuple
 
-from shared.keys import EVENTS_LOG, LAP, SIM_CONTROL
+from shared.keys import EVENTS_LOG, LAP, SIM_CONTROL, TELEPORT
 from shared.messages import Message
 
 #: Keys whose messages are events (never dropped by the queue policy).
-EVENT_SUFFIXES: frozenset[str] = frozenset({LAP, EVENTS_LOG, SIM_CONTROL})
+EVENT_SUFFIXES: frozenset[str] = frozenset({LAP, EVENTS_LOG, SIM_CONTROL, TELEPORT})
 
 
 class Item(NamedTuple):

@@ -30,7 +30,8 @@ Entity layout (units in the names or below):
   ``telemetry/{queue_depth,dropped/<key>,rejected/<key>,seq_gaps/<key>}`` [messages].
 * text logs: ``events/lap`` (lap events, also as ``AnyValues`` fields for the report),
   ``events/log/<source>`` (``LogEvent``), ``events/telemetry`` (stale input, solver
-  fallback, off track, rejected or dropped messages), ``events/sim_control``.
+  fallback, off track, rejected or dropped messages), ``events/sim_control``,
+  ``events/teleport``.
 * ``plan/info``: ``AnyValues`` (method, status) whenever they change.
 
 Latency ``latency/<key>`` is the message age at arrival, ``recv - stamp_s`` [ms], for
@@ -73,6 +74,7 @@ from shared.messages import (
     SimControl,
     SimTruth,
     State,
+    Teleport,
     VescState,
     VescStatusName,
 )
@@ -232,6 +234,7 @@ class Recorder:
             keys.SIM_TRUTH: self._truth,
             keys.EVENTS_LOG: self._log_event,
             keys.SIM_CONTROL: self._sim_control,
+            keys.TELEPORT: self._teleport,
         }
         self._static: tuple[Track | None, CurvatureProfile | None,
                             Mapping[str, str | float | int] | None] | None = None
@@ -728,6 +731,10 @@ class Recorder:
 
     def _sim_control(self, m: SimControl, tl: str, t: float, _recv: float) -> None:
         self.event("sim_control", _INFO, f"simulator {m.action} requested", (tl, t))
+
+    def _teleport(self, m: Teleport, tl: str, t: float, _recv: float) -> None:
+        self.event("teleport", _INFO, f"car put at ({m.x_m:.2f}, {m.y_m:.2f}) m, "
+                   f"{m.yaw_rad:.2f} rad, {m.speed_mps:.2f} m/s", (tl, t))
 
     # ------------------------------------------------------------------ driven path
     def _path_add(self, x: float, y: float, v: float, tl: str, t: float) -> None:

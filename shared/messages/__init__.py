@@ -47,6 +47,7 @@ from shared.messages.records import (
     SimControl,
     SimTruth,
     State,
+    Teleport,
     VescState,
 )
 from shared.messages.vocab import (
@@ -88,6 +89,7 @@ __all__ = [
     "SimControl",
     "SimTruth",
     "State",
+    "Teleport",
     "VescState",
     "VescStatusName",
     "decode",

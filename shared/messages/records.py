@@ -427,6 +427,29 @@ class SimControl(Message):
     action: SimAction
 
 
+class Teleport(Message):
+    """The car was put somewhere else at `stamp_s`: a simulator reset, the simulator's
+    off-track marshal, or an operator placing the car on the track.
+
+    A pose filter re-initialises at this pose at once instead of gating the jump; poses,
+    odometry and IMU readings stamped at or before `stamp_s` describe the car before the
+    teleport.
+
+    Attributes:
+        x_m, y_m: REAR-AXLE position after the teleport [m] (as ``Pose``, map frame).
+        yaw_rad: heading after the teleport [rad].
+        speed_mps: speed after the teleport [m/s] (0: placed at rest).
+    """
+
+    TYPE = "teleport"
+    RELIABLE = True
+
+    x_m: Pos
+    y_m: Pos
+    yaw_rad: Angle
+    speed_mps: Speed = 0.0
+
+
 #: Every message class, in contract order.
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     Pose,
@@ -441,4 +464,5 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     SimTruth,
     LogEvent,
     SimControl,
+    Teleport,
 )

@@ -54,6 +54,7 @@ from shared.keys import (
     SIM_CONTROL,
     SIM_TRUTH,
     STATE,
+    TELEPORT,
     TOPIC_TYPES,
     VESC_STATE,
     Keys,
@@ -80,6 +81,7 @@ PUT_RIGHTS: Mapping[str, tuple[str, ...]] = MappingProxyType(
         VESC_STATE: ("vesc_driver",),
         SIM_TRUTH: ("simulator",),
         SIM_CONTROL: ("launcher", "operator"),
+        TELEPORT: ("simulator", "operator"),
         EVENTS_LOG: IDENTITIES,
     }
 )

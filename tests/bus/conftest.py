@@ -22,6 +22,7 @@ from shared.messages import (
     SimControl,
     SimTruth,
     State,
+    Teleport,
     VescState,
 )
 from shared.net import free_loopback_port
@@ -129,6 +130,7 @@ SAMPLE_FACTORIES: dict[type[Message], Callable[[], Message]] = {
     ),
     LogEvent: lambda: LogEvent(stamp_s=5.0, level="warning", source="planner", text="slow solve"),
     SimControl: lambda: SimControl(stamp_s=6.0, action="reset"),
+    Teleport: lambda: Teleport(stamp_s=7.0, x_m=-0.3, y_m=1.2, yaw_rad=0.1, speed_mps=0.5),
 }
 
 

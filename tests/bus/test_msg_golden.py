@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from shared.messages import (
+    MESSAGE_TYPES,
     DriveCmd,
     Imu,
     LapEvent,
@@ -30,6 +31,7 @@ from shared.messages import (
     SimControl,
     SimTruth,
     State,
+    Teleport,
     VescState,
     decode,
     decode_any,
@@ -147,6 +149,8 @@ CASES: dict[str, Callable[[], Message]] = {
     "log_event_unicode": lambda: LogEvent(stamp_s=5.0, level="error", source="ü" * 64,
                                           text="Δt > 100 ms ✓\n" + "x" * 300),
     "sim_control": lambda: SimControl(stamp_s=6.0, action="reset"),
+    # added with the type (no first-codec payload): the bytes of msgpack.packb of its map
+    "teleport": lambda: Teleport(stamp_s=7.0, seq=9, x_m=-0.3, y_m=1.2, yaw_rad=0.1),
 }
 
 #: name -> hex of the payload, or (length, SHA-256 hex) for long payloads.
@@ -303,6 +307,11 @@ GOLDEN: dict[str, str | tuple[int, str]] = {
         "85a474797065ab73696d5f636f6e74726f6ca17601a77374616d705f73cb4018000000000000a373"
         "657100a6616374696f6ea57265736574"
     ),
+    "teleport": (
+        "88a474797065a874656c65706f7274a17601a77374616d705f73cb401c000000000000a373657109"
+        "a3785f6dcbbfd3333333333333a3795f6dcb3ff3333333333333a77961775f726164cb3fb9999999"
+        "99999aa973706565645f6d7073cb0000000000000000"
+    ),
 }
 
 
@@ -319,7 +328,7 @@ def _matches(data: bytes, golden: str | tuple[int, str]) -> bool:
 def test_every_case_has_a_golden_payload() -> None:
     assert set(GOLDEN) == set(CASES)
     kinds = {type(CASES[name]()) for name in CASES}
-    assert len(kinds) == 12  # every message type
+    assert kinds == set(MESSAGE_TYPES)  # every message type
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

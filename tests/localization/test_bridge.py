@@ -15,7 +15,7 @@ from services.localization_bridge import LidarPoseSource, ScanLayout, scan_probl
 from services.localization_bridge.service import BridgeService
 from shared.bus.fake import FakeBus
 from shared.config.localization import LocalizationSettings
-from shared.messages import Imu, LogEvent, Odom, Pose, Scan, State
+from shared.messages import Imu, LogEvent, Odom, Pose, Scan, State, Teleport
 from shared.track import load_track
 from shared.track.occupancy import FREE, OCCUPIED, OccupancyGrid
 
@@ -144,3 +144,29 @@ def test_the_lidar_bridge_drops_bad_scans_through_its_shell(
     assert c["angle_increment_not_positive"] == 1
     with pytest.raises(ValueError, match="needs the track"):
         BridgeService(FakeBus(), settings)
+
+
+def test_the_particle_filter_is_placed_at_the_teleport_and_drops_older_scans() -> None:
+    src = LidarPoseSource(room(), small_pf_settings(), (0.0, 0.0, 0.0))
+    src.place(2.0, 0.5, -0.5, 1.0, 0.0)
+    poses = src.pf.poses
+    assert np.mean(poses[:, 0]) == pytest.approx(0.5, abs=0.1)
+    assert np.mean(poses[:, 1]) == pytest.approx(-0.5, abs=0.1)
+    assert src.scan(scan(stamp=1.9)) is None and src.scan(scan(stamp=2.0)) is None
+    assert src.counts["scan_before_teleport"] == 2
+    src.scan(scan(stamp=2.1))
+    assert src.counts["scans_used"] == 1
+
+
+def test_the_lidar_bridge_places_its_filter_on_the_scan_worker(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(service, "occupancy_for", lambda _track: room())
+    svc = BridgeService(FakeBus(), small_pf_settings(), load_track("paperlike"))
+    svc.wall_clock = lambda: 2.0
+    svc.on_teleport(Teleport(stamp_s=1.95, x_m=0.5, y_m=-0.5, yaw_rad=1.0))
+    assert svc._place is not None  # waiting for the scan worker (it owns the filter)
+    svc.on_scan(scan(stamp=1.9))
+    assert svc._place is None and svc.lidar is not None
+    assert svc.lidar.counts["scan_before_teleport"] == 1
+    assert np.mean(svc.lidar.pf.poses[:, 0]) == pytest.approx(0.5, abs=0.1)

@@ -173,3 +173,77 @@ def test_a_pose_covariance_is_used_and_a_broken_one_does_not_break_the_filter() 
     est.pose(0.995, 1.99, 0.0, 0.0, bad, 1.0)
     e = est.estimate(1.0)
     assert np.all(np.isfinite(e.cov)) and e.valid
+
+
+# --- a teleport (issue 25): re-initialised at once, the gate does not hold the old position
+def test_a_teleport_reinitialises_at_once_where_the_gate_would_hold_the_old_position() -> None:
+    est = started()  # 1 s along +x at 2 m/s: at x = 2 m
+    assert est.pose(0.99, 2.0, 5.0, 0.0, None, 1.0) is Verdict.GATED  # the jump alone: gated
+    assert est.teleport(1.0, -3.0, 4.0, 1.5, 0.0, 1.0) is Verdict.TELEPORT
+    e = est.estimate(1.01)  # the next output
+    assert math.hypot(e.x_m + 3.0, e.y_m - 4.0) < 1e-3 and abs(e.yaw_rad - 1.5) < 1e-6
+    assert e.speed_mps == 0.0 and e.valid and e.pose_stamp_s == 1.0
+    assert est.counts["teleport_applied"] == 1
+    # what was measured before the teleport (arriving late) is the car before it: dropped
+    assert est.pose(0.995, 2.0, 0.0, 0.0, None, 1.01) is Verdict.STALE
+    assert est.pose(1.0, 2.0, 0.0, 0.0, None, 1.01) is Verdict.STALE  # the same instant
+    assert est.odom(0.999, 2.0, 0.0, None, 1.01) is Verdict.STALE
+    assert est.imu(0.998, 0.0, 1.01) is Verdict.STALE
+    assert est.counts["pose_before_teleport"] == 2 and est.counts["odom_before_teleport"] == 1
+    assert est.counts["imu_before_teleport"] == 1
+    # the poses after it are applied (not gated) and the car stays where it was put
+    for k in range(1, 21):
+        now = 1.0 + 0.01 * k
+        est.odom(now, 0.0, 0.0, None, now)
+        est.imu(now, 0.0, now)
+        if k % 3 == 0:
+            assert est.pose(now - 0.02, -3.0, 4.0, 1.5, None, now) is Verdict.APPLIED
+    e = est.estimate(1.2)
+    assert math.hypot(e.x_m + 3.0, e.y_m - 4.0) < 0.01 and abs(e.speed_mps) < 0.05
+    assert est.counts["pose_gated"] == 1
+
+
+def test_a_teleport_keeps_the_later_readings_and_the_gyro_bias() -> None:
+    est = started()
+    bias = est.estimate(1.0).bias_radps
+    est.odom(1.005, 1.0, 0.0, None, 1.006)  # after the teleport's stamp, arrived before it
+    assert est.teleport(1.0, 0.0, 0.0, 0.0, 0.0, 1.01) is Verdict.TELEPORT
+    e = est.estimate(1.01)
+    assert 0.0 < e.speed_mps <= 1.0  # the later wheel speed re-applied on the new start
+    assert e.bias_radps == bias
+
+
+def test_a_teleport_with_a_speed_starts_moving() -> None:
+    est = started()
+    est.teleport(1.0, 0.0, 0.0, 0.0, 2.5, 1.0)
+    e = est.estimate(1.05)
+    assert e.speed_mps == 2.5 and e.x_m == pytest.approx(0.125, abs=1e-6)
+
+
+def test_teleports_are_checked_like_every_input() -> None:
+    est = started()
+    assert est.teleport(1.0 + 3600.0, 0.0, 0.0, 0.0, 0.0, 1.0) is Verdict.FUTURE
+    assert est.teleport(0.2, 0.0, 0.0, 0.0, 0.0, 1.0) is Verdict.STALE  # older than the history
+    assert est.teleport(1.0, math.nan, 0.0, 0.0, 0.0, 1.0) is Verdict.STALE
+    assert est.counts["teleport_future"] == 1 and est.counts["teleport_stale"] == 1
+    assert est.counts["teleport_not_finite"] == 1
+    assert est.teleport(1.0, 0.0, 0.0, 0.0, 0.0, 1.0) is Verdict.TELEPORT
+    assert est.teleport(1.0, 5.0, 0.0, 0.0, 0.0, 1.0) is Verdict.STALE  # the same one again
+    assert est.teleport(1.01, 5.0, 0.0, 0.0, 0.0, 1.01) is Verdict.TELEPORT  # a newer one
+
+
+def test_a_teleport_starts_a_filter_that_had_no_pose_yet() -> None:
+    est = FusedEstimator(LocalizationSettings())
+    est.odom(0.0, 0.0, 0.0, None, 0.0)
+    assert est.teleport(0.0, 1.0, 2.0, 0.3, 0.0, 0.0) is Verdict.TELEPORT
+    assert est.initialised and est.estimate(0.01).valid
+    moving(est, 0.0, 0.3, v=0.0, poses=False)
+    e = est.estimate(0.3)
+    assert e.x_m == pytest.approx(1.0, abs=1e-6) and e.y_m == pytest.approx(2.0, abs=1e-6)
+
+
+def test_without_latency_compensation_readings_are_still_judged_by_their_own_stamps() -> None:
+    est = started(latency_compensation=False)
+    assert est.teleport(1.0, -3.0, 4.0, 0.0, 0.0, 1.02) is Verdict.TELEPORT
+    assert est.pose(0.99, 2.0, 0.0, 0.0, None, 1.03) is Verdict.STALE
+    assert est.pose(1.025, -3.0, 4.0, 0.0, None, 1.03) is Verdict.APPLIED

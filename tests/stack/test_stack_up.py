@@ -95,6 +95,10 @@ def test_racestack_up_races_a_lap_records_it_and_stops_everything(tmp_path: Path
     assert "all services alive: racing" in out
     assert re.search(r"lap 1: \d+\.\d+ s, .* off-track 0", out), out
     assert "Lap time [s]" in out and "completed laps         1/1" in out
+    # the CPU of each process over the race, beside the table (issue 25)
+    assert "CPU over the race (" in out, out
+    for name in (*pids, "launcher (with the hub)", "all"):
+        assert re.search(rf"^  {re.escape(name)} +\d+\.\d\d s +\d+\.\d %", out, re.M), out
 
     # the recording of the real run (issue 5)
     data = read_recording(run_dir)

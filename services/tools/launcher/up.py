@@ -3,8 +3,9 @@
 The launcher hosts the Zenoh router (the hub on ``[bus] listen``), starts the simulator,
 localization bridge, planner and telemetry as separate processes, waits until all are alive
 (liveliness tokens), resets the simulator to the start line, races ``--laps`` laps (lap events
-from the simulator), prints the lap table and stops every child. Ctrl-C stops them all too; a
-child that dies is reported and the rest are stopped.
+from the simulator), prints the lap table and each process's CPU use over the race
+(``cpu.py``: the children and the launcher with its hub) and stops every child. Ctrl-C stops
+them all too; a child that dies is reported and the rest are stopped.
 
 On the terminal: the ``rerun --connect ...`` line of ``--serve``; the progress of
 the lap being driven and the planned speed (from ``planner/plan``: one line rewritten in
@@ -31,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from services.planner import MinTimeError, ensure_artefacts
+from services.tools.launcher.cpu import CpuMeter, format_cpu
 from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus, BusOpenError
 from shared.config import RacestackConfig
@@ -305,7 +307,9 @@ def _race(
             print(line or "live telemetry: no rerun --connect line in "
                   f"{children['telemetry'].log_path} yet (see that log)", flush=True)
         print("all services alive: racing", flush=True)
+        cpu = CpuMeter({n: c.pid for n, c in children.items()}, own="launcher (with the hub)")
         control.wait_matching(5.0)
+        cpu.start()
         control.put(SimControl(stamp_s=time.time(), action=SimActionName.RESET))
         last_progress = time.monotonic()
         live = LiveLine()
@@ -362,6 +366,7 @@ def _race(
             print(format_table(doc), flush=True)
         else:
             print("no lap finished", flush=True)
+        print(format_cpu(cpu.stop()), flush=True)
         print("stopping the stack", flush=True)
     if "telemetry" in opts.services:
         print(f"recording: {run_dir}/telemetry.*.rrd (open: rerun {run_dir}/telemetry.*.rrd;"
