@@ -154,6 +154,11 @@ class Recovery:
 
 
 
+#: A pose this far [m] from the last one is a teleport (a reset, a car placed back by hand,
+#: a relocalisation), not a move: no car covers it in a planner tick. The planner then
+#: forgets where the car was and starts cold from a search of the whole track.
+TELEPORT_JUMP_M = 1.5
+
 #: The car counts as held still while it stays within this distance [m] of where it stood
 #: (larger than the pose noise and than a car rocking between small commands, smaller than
 #: one planner tick at racing speed).

@@ -179,3 +179,21 @@ def test_identified_car_finishes_laps_on_map416_spinning_in_the_turns(shared_tra
     assert run.completed_laps == 2, run.extra
     assert run.extra["recoveries"] > 0
     assert run.run_off_track_events >= sum(lap.off_track_events for lap in run.laps)
+
+
+@pytest.mark.parametrize("kind", ["mpc", "tracker"])
+def test_a_teleported_car_is_found_where_it_stands(track, kind) -> None:
+    """A reset or a car placed back by hand moves it farther than any tick could: the planner
+    searches the whole track again and races on from there (no 'car lost' recovery)."""
+    settings = PlannerSettings()
+    if kind == "tracker":
+        ensure_artefacts(RACELINE, track, settings)
+    planner = Planner(track, settings) if kind == "mpc" else RacelinePlanner(track, settings)
+    for k in range(5):
+        planner.step(*_pose_on(track, 2.0 + 0.1 * k, 0.0))
+    far = 0.5 * track.length_m
+    res = planner.step(*_pose_on(track, far, 0.0))
+    assert res.status != RECOVERING, res.solver_status
+    assert res.s_m == pytest.approx(far, abs=0.05) and abs(res.e_con_m) < 0.05
+    res = planner.step(*_pose_on(track, far + 0.05, 0.0))
+    assert res.status == SOLVED and planner.recovery.episodes == 0

@@ -47,7 +47,13 @@ from services.planner.mintime.store import load_min_time_lap
 from services.planner.mpc.model import NU, NX, S, SlipModel, SpeedLoop, U, discretise
 from services.planner.mpc.problem import UA, XA, XA_SPEED, OcpProblem, build_problem
 from services.planner.mpc.solver import SolverHandle, make_solver
-from services.planner.recovery import HandOver, Recovery, RecoveryCommand, StallWatch
+from services.planner.recovery import (
+    TELEPORT_JUMP_M,
+    HandOver,
+    Recovery,
+    RecoveryCommand,
+    StallWatch,
+)
 from services.planner.reference import ReferencePath, centreline_path, min_time_path
 from shared.angles import wrap_angle
 from shared.config.methods import CIMPCC_LINE, MethodSetup, method_setup
@@ -267,6 +273,7 @@ class Planner:
         self._drove = False  #: the last tick's command was the method's own (solved)
         self._pose_prev: tuple[float, float, float] | None = None
         self._v_est = 0.0  #: the car's estimated speed at the last pose [m/s] (speed model)
+        self._last_xy: tuple[float, float] | None = None  #: the last pose's position [m]
         self.recovery.reset()
 
     @property
@@ -320,6 +327,9 @@ class Planner:
             return self._failed(
                 np.zeros(NU + 1), 0.0, 0.0, "non-finite pose", 0, 0.0, None, on_command
             )
+        last, self._last_xy = self._last_xy, (x_m, y_m)
+        if last is not None and math.hypot(x_m - last[0], y_m - last[1]) > TELEPORT_JUMP_M:
+            self._relocate()
         if self._s_prev is None:
             s0, e0 = (float(v) for v in self.track.project(np.array([x_m, y_m])))
         else:  # near the last projection, falling back to PROJECTION_WINDOW_M and beyond
@@ -410,6 +420,22 @@ class Planner:
         )
 
     # ------------------------------------------------------------------ helpers
+    def _relocate(self) -> None:
+        """The car was moved (``TELEPORT_JUMP_M``): forget where it was and what it did (the
+        next solve starts cold from a search of the whole track, the recovery rule lets go),
+        keeping the run's counts."""
+        self._s_prev = self._s_path_prev = None
+        self._w_prev = None
+        self._prepared = None
+        self._pose_prev = None
+        self._v_est = 0.0
+        self._u_applied = np.zeros(NU)
+        self._failures = 0
+        self._stall.reset()
+        self._handover.active = False
+        self._drove = False
+        self.recovery.active = False
+
     def _recovering(
         self,
         x0: np.ndarray,

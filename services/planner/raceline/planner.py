@@ -54,7 +54,7 @@ from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettin
 from services.planner.mintime.requests import min_time_settings, planning_vehicle
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
-from services.planner.recovery import HandOver, Recovery, StallWatch
+from services.planner.recovery import TELEPORT_JUMP_M, HandOver, Recovery, StallWatch
 from shared.config.methods import RACELINE
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
@@ -410,6 +410,7 @@ class RacelinePlanner:
         self._handover.active = False
         self._drove = False  #: the last tick's command was the tracker's
         self._speed_cmd = 0.0  #: the last speed command [m/s]
+        self._last_xy: tuple[float, float] | None = None  #: the last pose's position [m]
 
     def prepare(self) -> None:
         """Nothing to do ahead of time (the ``Planner`` interface)."""
@@ -431,6 +432,9 @@ class RacelinePlanner:
             return self._result(
                 cmd, x_m, y_m, yaw_rad, 0.0, 0.0, 0.0, "non-finite pose", t0, status=BRAKING
             )
+        last, self._last_xy = self._last_xy, (x_m, y_m)
+        if last is not None and math.hypot(x_m - last[0], y_m - last[1]) > TELEPORT_JUMP_M:
+            self._relocate()  # the car was moved: search the whole track, start afresh
         lr = self.vehicle.lr_m
         cx, cy = x_m + lr * math.cos(yaw_rad), y_m + lr * math.sin(yaw_rad)  # the CoG
         s_t, e_t = self._project_track(x_m, y_m)
@@ -478,6 +482,16 @@ class RacelinePlanner:
         if on_command is not None:
             on_command(cmd)
         return self._result(cmd, x_m, y_m, yaw_rad, tc.s_m, s_t, e_t, "tracker", t0)
+
+    def _relocate(self) -> None:
+        """Forget where the car was (a teleport, ``TELEPORT_JUMP_M``), keeping the counts."""
+        self._s_line = self._s_track = None
+        self.tracker.reset()
+        self._stall.reset()
+        self._handover.active = False
+        self._drove = False
+        self._speed_cmd = 0.0
+        self.recovery.active = False
 
     def _project_track(self, x: float, y: float) -> tuple[float, float]:
         if self._s_track is None:
