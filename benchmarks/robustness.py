@@ -576,6 +576,39 @@ def worst_cells(cells: list[dict[str, Any]], methods: Iterable[str], n: int = WO
     return out
 
 
+GROUP_HEADER = (f"{'clean':>7} {'median':>6} {'worst':>6} {'off':>4} {'rec':>4} {'spn':>4} "
+                f"{'unf':>3}")
+
+
+def grouped_table(cells: list[dict[str, Any]], methods: Iterable[str],
+                  tracks_dir: Path = TRACKS_DIR) -> str:
+    """Rows = track group x car x pose; per method: clean cells of the group, the median
+    and worst ratio, off-track events, recoveries, spins and unfinished cells."""
+    methods = list(methods)
+    group_of = {s: g for g, specs in track_groups(tracks_dir).items() for s in specs}
+    groups: dict[tuple[str, str, str], list[dict]] = {}
+    for c in cells:
+        key = (group_of.get(c["track_spec"], "other"), c["car"], c["pose"])
+        groups.setdefault(key, []).append(c)
+    w = len(GROUP_HEADER)
+    lines = [f"{'':<44}" + "".join(f" | {m:^{w}}" for m in methods),
+             f"{'tracks':<14} {'car':<22} {'pose':<6}" + f" | {GROUP_HEADER}" * len(methods)]
+    for (group, car, pose), members in groups.items():
+        row = f"{group:<14} {car:<22} {pose:<6}"
+        for m in methods:
+            recs = [c["methods"][m] for c in members if m in c["methods"]]
+            ratios = [r["ratio"] for r in recs if r.get("ratio") is not None]
+            clean = f"{sum(bool(r.get('clean')) for r in recs)}/{len(recs)}"
+            unf = sum(r.get("laps_completed", 0) < r.get("laps_requested", 1) for r in recs)
+            row += (f" | {clean:>7} {_fmt(np.median(ratios) if ratios else None, '6.3f', '     -')}"
+                    f" {_fmt(max(ratios) if ratios else None, '6.3f', '     -')} "
+                    + " ".join(f"{sum(r.get(k) or 0 for r in recs):>4}"
+                               for k in ("off_track", "recoveries", "spins"))
+                    + f" {unf:>3}")
+        lines.append(row)
+    return "\n".join(lines)
+
+
 def wall_by_kind(cells: list[dict[str, Any]], tracks_dir: Path = TRACKS_DIR
                  ) -> dict[str, dict[str, float]]:
     """Wall time [s] of the cells by track group x pose and by car: total and per cell."""
@@ -606,6 +639,10 @@ def report(cells: list[dict[str, Any]], matrix: Matrix, timings: dict[str, float
         "",
         "worst cells:",
         *worst_cells(cells, matrix.methods),
+        "",
+        "by track group x car x pose (median / worst ratio over the group's cells; unf = "
+        "unfinished cells):",
+        grouped_table(cells, matrix.methods),
         "",
         "wall time by kind of cell: " + ", ".join(
             f"{k} {v['cells']} x {v['per_cell_s']:.1f} s" for k, v in kinds.items()),

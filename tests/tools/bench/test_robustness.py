@@ -131,6 +131,10 @@ def test_the_summary_counts_and_worst_ratios() -> None:
     table = rb.format_table(cells, [m, RACELINE]).splitlines()
     assert len(table) == 3 + len(cells) + 1  # two header lines, a rule, the rows, the legend
     assert all(len(row) == len(table[1]) for row in table[3:-1])
+    grouped = rb.grouped_table(cells, [m]).splitlines()
+    # two header lines, one row per (group, car, pose): tracks a and b are one group here
+    assert len(grouped) == 2 + 4
+    assert grouped[2].split()[:7] == ["other", "default", "truth", "|", "1/2", "1.010", "1.010"]
     worst = rb.worst_cells(cells, [m])
     assert worst[0].startswith("b ") and worst[1].startswith("a ")  # fewest laps first
 
