@@ -74,7 +74,9 @@ class Trace:
         t_s: simulation time [s]; s_m: progress along the centreline in [0, L) [m];
         x_m, y_m: car position [m]; speed_mps: measured speed [m/s];
         cmd_speed_mps: commanded speed [m/s]; e_con_m: contour error [m];
-        beta: beta at the car; lap: index of the lap the row belongs to (0 = out lap).
+        beta: beta at the car; lap: index of the lap the row belongs to (0 = out lap);
+        rear_slip_rad: the simulated car's rear-axle slip angle [rad] (the simulator's
+            ``tyre_state``; 0 in its kinematic regime; empty when the source has none).
     """
 
     t_s: list[float] = field(default_factory=list)
@@ -86,6 +88,7 @@ class Trace:
     e_con_m: list[float] = field(default_factory=list)
     beta: list[float] = field(default_factory=list)
     lap: list[int] = field(default_factory=list)
+    rear_slip_rad: list[float] = field(default_factory=list)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every column as a numpy array."""

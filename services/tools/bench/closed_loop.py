@@ -65,7 +65,8 @@ class SimulatorPlant:
 
     Attributes:
         sim, timer: the simulator and its lap timer.
-        trace: one row per tick (the state the planner saw, its command).
+        trace: one row per tick (the state the planner saw, its command, the car's rear
+            slip angle).
         laps: the timed laps.
         off_all, off_out: off-track events, all and in the out lap.
     """
@@ -142,6 +143,7 @@ class SimulatorPlant:
         trace.e_con_m.append(timer.e_con_m)
         trace.beta.append(float(res.beta[0]))
         trace.lap.append(timer.laps_completed + 1 if timer.timing else 0)
+        trace.rear_slip_rad.append(sim.model.tyre_state(sim.state_tuple, 0.0).slip_rear_rad)
         ts = period_s
         delay = res.solve_time_s if opts.delay_mode == "measured" else opts.compute_delay_s
         delay = min(max(delay, 0.0), ts)

@@ -1,0 +1,825 @@
+"""Robustness benchmark: methods racing a matrix of tracks, cars and pose sources.
+
+    python -m benchmarks.robustness --quick                  # CI-sized subset, a few minutes
+    python -m benchmarks.robustness --out runs/robust        # the whole matrix
+    python -m benchmarks.robustness --tracks f1tenth --v-max 10   # the F1TENTH maps uncapped
+    python -m benchmarks.robustness --methods cimpcc,raceline --cars default --poses truth
+
+The matrix (``--tracks``, ``--cars``, ``--poses`` narrow it):
+
+- tracks: map416 and paperlike (``builtin``), the six F1TENTH maps of ``../shared/tracks``
+  (``f1tenth``), the generated measuring tracks ``gen:N`` for N in
+  ``shared.track.generator.GENERATED_SEEDS`` (``generated``; never the tuning seeds);
+- cars (``CARS``): ``default`` (the F1TENTH gym's car, ``linear_saturated`` tyres),
+  ``linear`` (the gym's own unbounded linear tyres), ``identified`` (the identified car with
+  Pacejka tyres, the planners told its car) and ``identified-on-default`` (the simulator races
+  the identified car, the planners keep the default car: a model mismatch);
+  ``linear-on-default`` (the world linear, the planners on the default car) on request;
+- pose: ``truth``, ``ekf``, ``lidar`` (``services.tools.bench.estimation``);
+- methods: the near-limit methods (cimpcc-line, raceline) unless ``--methods`` names others
+  of the registry (a bench variant races its base method with the configuration's settings).
+
+A cell is one (track, car, pose); each method races it in the bench's closed loop
+(``services.tools.bench.run_method``: an out lap from standstill, then ``--laps`` flying
+laps). Per method the cell records the mean lap over the simulated car's minimum-time lap at
+the cap (``ratio``), off-track events of the whole run (out lap included), recoveries, spins
+(``spin_events``: the rear axle's slip angle beyond its tyres' peak slip for more than
+``SPIN_MIN_DURATION_S``; beside it the largest rear slip over that peak), laps completed,
+the laps below the limit and the excursions over the cap
+(``shared.evaluation.results.rule_check``) and the solve time's median and p99. A method
+is clean in a cell when it completed every lap with no off-track event, recovery, spin, lap
+below the limit or excursion over the cap.
+
+The cap: the configuration's (``[planner.cimpcc] v_up_mps[0]``, 4.18 m/s) unless ``--v-max``
+sets every method's: ``[planner.cimpcc] v_up_mps`` (the tuner's pair, v_l = 1.1 v_p),
+``[planner.cimpcc_line] v_max_mps`` and ``[planner.raceline] v_max_mps`` (``cap_overlay``);
+the limit is then solved at that top speed too. MPCC's fixed speed reference is no cap and
+stays.
+
+Two phases: first every minimum-time lap the cells read (each car's limit and the planners'
+lines), solved once and cached (``services.planner.make_min_time_lap``), in ``--jobs``
+processes with a progress line each; then the cells in ``--jobs`` processes (spawned; each
+builds its own planners). Each finished cell is appended to ``OUT/cells.jsonl``
+(``--resume`` skips the cells found there); at the end ``OUT/robustness.json`` (the cells, the
+summary, the wall times by kind of cell) and ``OUT/robustness.txt`` (the table, the worst
+cells and the summary, also printed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import multiprocessing as mp
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.planner import (
+    PlannerPool,
+    laps_of,
+    limit_request,
+    make_min_time_lap,
+    request_for,
+)
+from services.planner.mintime.ocp import MinTimeSettings
+from services.tools.bench.closed_loop import LoopOptions, run_method
+from services.tools.bench.estimation import ESTIMATORS
+from services.tools.bench.run import BenchError, min_time_reference, parse_methods
+from services.tools.tune.search import speed_pair, top_progress_speed
+from shared.config import RacestackConfig, config_from_dict
+from shared.config.methods import CIMPCC, CIMPCC_LINE, METHODS, RACELINE
+from shared.config.vehicle import DynamicVehicleParams
+from shared.evaluation import MethodRun, results_document, write_results
+from shared.track import Track, load_track
+from shared.track.generator import GENERATED_SEEDS
+from shared.vehicle.tyres import pacejka_peak_slip_rad
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The shared track data (map416, the F1TENTH maps).
+TRACKS_DIR = ROOT.parent / "shared" / "tracks"
+#: The six F1TENTH maps under ``TRACKS_DIR / "f1tenth"``.
+F1TENTH_MAPS = ("Austin", "Monza", "Oschersleben", "Silverstone", "Spielberg", "YasMarina")
+#: The near-limit methods (the default ``--methods``).
+NEAR_LIMIT_METHODS = (CIMPCC_LINE, RACELINE)
+#: A spin: the rear slip angle beyond the tyres' peak slip for longer than this [s].
+SPIN_MIN_DURATION_S = 0.2
+#: The ``--quick`` subset.
+QUICK_TRACKS = ("map416", "paperlike", *(f"gen:{s}" for s in GENERATED_SEEDS[:2]))
+QUICK_CARS = ("default", "identified")
+QUICK_POSES = ("truth",)
+#: Rows of the worst-cells list.
+WORST_ROWS = 20
+
+
+@dataclass(frozen=True)
+class CarSpec:
+    """One car of the matrix: the configuration tables that make it and whether the planners
+    are told the car the simulator races.
+
+    Attributes:
+        name: the car's name in the matrix (``--cars``).
+        tables: ``[vehicle]`` and, for a mismatch, ``[simulator.vehicle]`` (a config dict).
+        knows_car: the planners' ``[vehicle]`` is the simulated car.
+        summary: one line for ``--help`` and the table's legend.
+    """
+
+    name: str
+    tables: dict[str, Any]
+    knows_car: bool
+    summary: str
+
+
+_IDENTIFIED = {"preset": "real_car_identified"}
+_DEFAULT = {"preset": "f1tenth_gym"}
+#: Every car the benchmark knows; ``DEFAULT_CARS`` are the matrix's.
+CARS: dict[str, CarSpec] = {
+    c.name: c
+    for c in (
+        CarSpec("default", {}, True, "the F1TENTH gym's car, linear_saturated tyres"),
+        CarSpec("linear", {"vehicle": {"tyre_model": "linear"}}, True,
+                "the gym's linear (unbounded) tyres, the planners told"),
+        CarSpec("identified", {"vehicle": _IDENTIFIED}, True,
+                "the identified car (Pacejka), the planners told its car"),
+        CarSpec("identified-on-default",
+                {"vehicle": _DEFAULT, "simulator": {"vehicle": _IDENTIFIED}}, False,
+                "the identified car simulated, the planners on the default car"),
+        CarSpec("linear-on-default",
+                {"vehicle": _DEFAULT, "simulator": {"vehicle": {"tyre_model": "linear"}}},
+                False, "linear tyres simulated, the planners on the default car"),
+    )
+}
+DEFAULT_CARS = ("default", "linear", "identified", "identified-on-default")
+
+
+# ------------------------------------------------------------------------- the matrix
+def track_groups(tracks_dir: Path = TRACKS_DIR) -> dict[str, tuple[str, ...]]:
+    """The track specs of each ``--tracks`` group (``builtin``, ``f1tenth``, ``generated``)."""
+    return {
+        "builtin": (str(tracks_dir / "map416"), "paperlike"),
+        "f1tenth": tuple(str(tracks_dir / "f1tenth" / n) for n in F1TENTH_MAPS),
+        "generated": tuple(f"gen:{s}" for s in GENERATED_SEEDS),
+    }
+
+
+def resolve_tracks(text: str, tracks_dir: Path = TRACKS_DIR) -> list[str]:
+    """The track specs of a ``--tracks`` list: groups (``all``, ``builtin``, ``f1tenth``,
+    ``generated``), ``map416`` (the shared one), or any track spec."""
+    groups = track_groups(tracks_dir)
+    out: list[str] = []
+    for item in (t.strip() for t in text.split(",")):
+        if not item:
+            continue
+        if item == "all":
+            specs: Iterable[str] = [s for g in groups.values() for s in g]
+        elif item in groups:
+            specs = groups[item]
+        elif item == "map416":
+            specs = [str(tracks_dir / "map416")]
+        else:
+            specs = [item]
+        out += [s for s in specs if s not in out]
+    if not out:
+        raise BenchError("no track given")
+    return out
+
+
+def _names(text: str, known: Iterable[str], what: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    known = list(known)
+    bad = [n for n in names if n not in known]
+    if bad or not names:
+        raise BenchError(f"unknown {what} {', '.join(bad) or '(none)'}; choose from "
+                         f"{', '.join(known)}")
+    return list(dict.fromkeys(names))
+
+
+def cap_overlay(v_max_mps: float | None) -> dict[str, Any]:
+    """The planner tables that put every method's cap at `v_max_mps` [m/s] (module
+    docstring); {} for None (the configuration's own cap)."""
+    if v_max_mps is None:
+        return {}
+    v_up = speed_pair(top_progress_speed(v_max_mps))  # the tuner's pair: v_l = 1.1 v_p
+    return {
+        "planner": {
+            METHODS[CIMPCC].section: {"v_up_mps": v_up},
+            METHODS[CIMPCC_LINE].section: {"v_max_mps": v_up[0]},
+            METHODS[RACELINE].section: {"v_max_mps": v_up[0]},
+        }
+    }
+
+
+def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def config_for(car: str, v_max_mps: float | None = None) -> RacestackConfig:
+    """The validated configuration of `car` (``CARS``) at cap `v_max_mps` (None: 4.18)."""
+    return config_from_dict(_merge(CARS[car].tables, cap_overlay(v_max_mps)))
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One cell: a track spec, a car of ``CARS``, a pose source of ``ESTIMATORS``."""
+
+    track: str
+    car: str
+    pose: str
+
+    @property
+    def key(self) -> str:
+        """The cell's identity in ``cells.jsonl``."""
+        return f"{self.track}|{self.car}|{self.pose}"
+
+
+@dataclass(frozen=True)
+class Matrix:
+    """What the benchmark races (module docstring)."""
+
+    tracks: tuple[str, ...]
+    cars: tuple[str, ...]
+    poses: tuple[str, ...]
+    methods: tuple[str, ...]
+    laps: int = 2
+    v_max_mps: float | None = None
+
+    def cells(self) -> list[Cell]:
+        """Every cell, track-major (the same track and car next to each other)."""
+        return [Cell(t, c, p) for t in self.tracks for c in self.cars for p in self.poses]
+
+
+# ------------------------------------------------------------------ the cell's figures
+def rear_peak_slip_rad(car: DynamicVehicleParams) -> float:
+    """The slip angle [rad] at which the rear tyres give their peak lateral force: the
+    magic formula's peak (``pacejka``), else ``1 / C_Sr``, where ``mu C_Sr F_z alpha``
+    reaches ``mu F_z`` (``linear_saturated``'s clip; for the gym's unbounded ``linear``
+    tyres the same friction level, which their force passes without a limit)."""
+    if car.tyre_model == "pacejka":
+        return pacejka_peak_slip_rad(car, "rear")
+    return 1.0 / car.cornering_stiffness_rear_per_rad
+
+
+def spin_events(
+    t_s: Iterable[float],
+    slip_rad: Iterable[float],
+    peak_rad: float,
+    min_duration_s: float = SPIN_MIN_DURATION_S,
+) -> int:
+    """Times |slip| stayed beyond `peak_rad` for more than `min_duration_s` [s].
+
+    A run of samples beyond the peak lasts from its first sample to the next sample after
+    it (the last run of the trace: one median sample period past its last sample)."""
+    t = np.asarray(list(t_s), dtype=float)
+    over = np.abs(np.asarray(list(slip_rad), dtype=float)) > peak_rad
+    if t.size == 0 or over.size != t.size or not over.any():
+        return 0
+    period = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    edges = np.diff(np.concatenate([[0], over.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # ends exclusive
+    count = 0
+    for a, b in zip(starts, ends, strict=True):
+        t_end = t[b] if b < t.size else t[-1] + period
+        count += bool(t_end - t[a] > min_duration_s + 1e-9)
+    return count
+
+
+def method_record(run: MethodRun, entry: dict[str, Any], peak_rad: float) -> dict[str, Any]:
+    """One method's figures in a cell from its run and its results.json entry (with the
+    reference's ``ratio_to_min_time`` and ``rule_check`` keys when the limit is known)."""
+    slip = np.abs(np.asarray(run.trace.rear_slip_rad, dtype=float))
+    solve = entry["solve_time_ms"]
+    rec = {
+        "ratio": entry.get("ratio_to_min_time"),
+        "mean_lap_s": entry["lap_time_s"]["mean"],
+        "laps_completed": run.completed_laps,
+        "laps_requested": run.requested_laps,
+        "off_track": run.run_off_track_events,
+        "out_lap_off_track": run.out_lap_off_track_events,
+        "recoveries": int(run.extra.get("recoveries", 0)),
+        "spins": spin_events(run.trace.t_s, run.trace.rear_slip_rad, peak_rad),
+        "max_rear_slip_rad": float(slip.max()) if slip.size else None,
+        "max_slip_over_peak": float(slip.max() / peak_rad) if slip.size else None,
+        "below_limit_laps": entry.get("below_limit_laps"),
+        "over_cap_events": entry.get("over_cap_events"),
+        "max_speed_mps": entry.get("max_speed_mps"),
+        "solve_ms_median": solve["median"],
+        "solve_ms_p99": solve["p99"],
+        "solver_failures": run.solver_failures,
+        "aborted": run.extra.get("aborted", ""),
+        "errors": list(entry.get("errors", [])),
+    }
+    if "localisation" in run.extra:
+        rec["localisation"] = run.extra["localisation"]
+    rec["clean"] = is_clean(rec)
+    return rec
+
+
+def is_clean(rec: dict[str, Any]) -> bool:
+    """Every lap completed, and no off-track event, recovery, spin, lap below the limit,
+    excursion over the cap or error."""
+    return (
+        not rec.get("error")
+        and rec.get("laps_completed", 0) >= rec.get("laps_requested", 1)
+        and not rec.get("off_track")
+        and not rec.get("recoveries")
+        and not rec.get("spins")
+        and not rec.get("below_limit_laps")
+        and not rec.get("over_cap_events")
+    )
+
+
+# -------------------------------------------------------------------- phase 1: the laps
+@dataclass(frozen=True)
+class LapTask:
+    """One minimum-time lap to make: the track, its use (``MIN_TIME_USES``), the car and the
+    settings it is solved for."""
+
+    track: str
+    use: str
+    car: dict[str, Any]
+    settings: MinTimeSettings
+    label: str = ""
+
+    @property
+    def key(self) -> str:
+        """What makes two tasks the same lap."""
+        return json.dumps([self.track, self.car, asdict(self.settings)], sort_keys=True)
+
+
+def lap_tasks(matrix: Matrix) -> list[LapTask]:
+    """Every distinct minimum-time lap the cells read: each simulated car's limit and each
+    method's line for the planners' car, the longest tracks first."""
+    tasks: dict[str, LapTask] = {}
+    for car in matrix.cars:
+        cfg = config_for(car, matrix.v_max_mps)
+        wanted = [("limit", *limit_request(cfg.planner, cfg.simulator.vehicle))]
+        for method in matrix.methods:
+            for use in laps_of(method, cfg.planner):
+                wanted.append((use, *request_for(use, cfg.planner, cfg.vehicle)))
+        for track in matrix.tracks:
+            for use, vehicle, settings in wanted:
+                task = LapTask(track, use, vehicle.model_dump(mode="json"), settings,
+                               f"{_short(track)} {use} ({car})")
+                tasks.setdefault(task.key, task)
+    return sorted(tasks.values(), key=lambda t: -_track(t.track).length_m)
+
+
+_TRACKS: dict[str, Track] = {}
+
+
+def _track(spec: str) -> Track:
+    if spec not in _TRACKS:
+        _TRACKS[spec] = load_track(spec)
+    return _TRACKS[spec]
+
+
+def solve_lap(task: LapTask) -> dict[str, Any]:
+    """Make one lap (read from the cache or solved); its outcome and wall time [s]."""
+    t0 = time.perf_counter()
+    try:
+        car = DynamicVehicleParams.model_validate(task.car)
+        lap = make_min_time_lap(_track(task.track), car, task.settings, use=task.use,
+                                progress=None)
+        out = {"ok": True, "lap_time_s": lap.lap_time_s, "cache_hit": lap.cache_hit}
+    except Exception as exc:  # a lap that cannot be made is an error of its cells
+        out = {"ok": False, "error": f"{type(exc).__name__}: {exc}", "cache_hit": False}
+    out.update(label=task.label, wall_s=time.perf_counter() - t0)
+    return out
+
+
+# -------------------------------------------------------------------- phase 2: the cells
+#: Per worker: the track, configuration, planner pool and limit of the last (track, car)s.
+_SETUPS: dict[tuple[str, str, float | None], tuple[Track, RacestackConfig, PlannerPool,
+                                                    dict | None, str]] = {}
+
+
+def _setup(track_spec: str, car: str, v_max: float | None):
+    key = (track_spec, car, v_max)
+    if key not in _SETUPS:
+        if len(_SETUPS) >= 4:
+            _SETUPS.pop(next(iter(_SETUPS)))
+        track = _track(track_spec)
+        cfg = config_for(car, v_max)
+        said = io.StringIO()
+        with contextlib.redirect_stderr(said):
+            ref = min_time_reference(track, cfg)
+        note = "" if ref is not None else said.getvalue().strip().splitlines()[-1]
+        _SETUPS[key] = (track, cfg, PlannerPool(track, cfg.vehicle), ref, note)
+    return _SETUPS[key]
+
+
+def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
+    """Race every method of `matrix` in `cell`; the cell's record (JSON-ready)."""
+    t0 = time.perf_counter()
+    track, cfg, pool, ref, note = _setup(cell.track, cell.car, matrix.v_max_mps)
+    peak = rear_peak_slip_rad(cfg.simulator.vehicle)
+    opts = LoopOptions(laps=matrix.laps, estimator=cell.pose, localization=cfg.localization)
+    methods: dict[str, Any] = {}
+    for name in matrix.methods:
+        m0 = time.perf_counter()
+        try:
+            planner = pool.planner(cfg.planner, name, cfg.curvature)
+            run = run_method(name, planner, track, cfg.simulator, opts)
+            entry = results_document(track.name, track.length_m, [run], reference=ref)
+            rec = method_record(run, entry["methods"][name], peak)
+        except Exception as exc:  # a method that cannot race is recorded
+            rec = {"error": f"{type(exc).__name__}: {exc}", "laps_completed": 0,
+                   "laps_requested": matrix.laps, "clean": False}
+        rec["wall_s"] = round(time.perf_counter() - m0, 2)
+        methods[name] = rec
+    return {
+        "key": cell.key,
+        "track": track.name,
+        "track_spec": cell.track,
+        "track_length_m": round(track.length_m, 2),
+        "car": cell.car,
+        "knows_car": CARS[cell.car].knows_car,
+        "pose": cell.pose,
+        "limit_s": None if ref is None else ref["min_time_lap_s"],
+        "v_max_mps": None if ref is None else ref["v_max_mps"],
+        "reference_note": note,
+        "rear_peak_slip_rad": peak,
+        "methods": methods,
+        "wall_s": round(time.perf_counter() - t0, 2),
+    }
+
+
+def _run_cell_task(args: tuple[Cell, Matrix]) -> dict[str, Any]:
+    return run_cell(*args)
+
+
+def _init_worker() -> None:
+    os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def _map(fn: Callable, items: list, jobs: int) -> Iterable:
+    """`fn` over `items` in this process (`jobs` 1) or `jobs` spawned workers, in the
+    order they finish."""
+    if jobs <= 1 or len(items) <= 1:
+        yield from map(fn, items)
+        return
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(min(jobs, len(items)), initializer=_init_worker) as pool:
+        yield from pool.imap_unordered(fn, items, chunksize=1)
+
+
+# ----------------------------------------------------------------------- table, summary
+def _short(track: str) -> str:
+    """A track spec's short name: ``gen:7`` -> ``gen-7``, a path -> its last part."""
+    if track.startswith("gen:"):
+        return "gen-" + track.removeprefix("gen:")
+    return Path(track).name
+
+
+def _fmt(v: Any, spec: str, none: str = "-") -> str:
+    return none if v is None else format(v, spec)
+
+
+def method_cell_text(rec: dict[str, Any] | None) -> str:
+    """One method's figures in a table row (``METHOD_HEADER``'s columns)."""
+    if rec is None:
+        return " " * METHOD_WIDTH
+    if rec.get("error"):
+        return f"{'error':>6} {rec['error'][:METHOD_WIDTH - 7]:<{METHOD_WIDTH - 7}}"
+    laps = f"{rec['laps_completed']}/{rec['laps_requested']}"
+    solve = f"{_fmt(rec['solve_ms_median'], '.1f')}/{_fmt(rec['solve_ms_p99'], '.1f')}"
+    return (f"{_fmt(rec['ratio'], '6.3f', '     -')} {laps:>4} {rec['off_track']:>3} "
+            f"{rec['recoveries']:>3} {rec['spins']:>3} "
+            f"{_fmt(rec.get('max_slip_over_peak'), '5.2f', '    -')} "
+            f"{_fmt(rec['below_limit_laps'], '>3')} "
+            f"{_fmt(rec['over_cap_events'], '>3')} {solve:>9} {'ok' if rec['clean'] else 'x':>2}")
+
+
+METHOD_HEADER = (f"{'ratio':>6} {'laps':>4} {'off':>3} {'rec':>3} {'spn':>3} {'slip':>5} "
+                 f"{'<lm':>3} {'>cp':>3} {'solve ms':>9} {'cl':>2}")
+METHOD_WIDTH = len(METHOD_HEADER)
+
+
+def format_table(cells: list[dict[str, Any]], methods: Iterable[str]) -> str:
+    """Rows = cells (track x car x pose), one block of columns per method."""
+    methods = list(methods)
+    label_w = 44
+    head1 = f"{'':<{label_w}}" + "".join(f" | {m:^{METHOD_WIDTH}}" for m in methods)
+    head2 = f"{'track':<14} {'car':<22} {'pose':<6}" + "".join(
+        f" | {METHOD_HEADER}" for _ in methods)
+    lines = [head1, head2, "-" * len(head2)]
+    for c in cells:
+        label = f"{c['track']:<14} {c['car']:<22} {c['pose']:<6}"
+        lines.append(label + "".join(f" | {method_cell_text(c['methods'].get(m))}"
+                                     for m in methods))
+    legend = (
+        "ratio = mean lap / the simulated car's minimum-time lap at the cap; laps = completed/"
+        "asked; off = off-track events (out lap included); rec = recoveries; spn = spins "
+        f"(|rear slip| beyond the tyres' peak > {SPIN_MIN_DURATION_S:g} s); slip = the largest "
+        "|rear slip| over that peak; <lm = laps below "
+        "the limit; >cp = excursions over the cap; solve = median/p99 [ms] (wall time of "
+        "each solve beside the other workers: it depends on the machine's load, the laps do "
+        "not: the bench's compute delay is fixed); cl = clean"
+    )
+    return "\n".join([*lines, legend])
+
+
+def summarise(cells: list[dict[str, Any]], method: str) -> dict[str, Any]:
+    """One method's figures over the cells it raced."""
+    recs = [(c, c["methods"][method]) for c in cells if method in c["methods"]]
+
+    def total(key: str) -> int:
+        return int(sum(r.get(key) or 0 for _, r in recs))
+
+    def worst(pred: Callable[[dict], bool]) -> float | None:
+        ratios = [r["ratio"] for c, r in recs if pred(c) and r.get("ratio") is not None]
+        return max(ratios) if ratios else None
+
+    p99 = [r["solve_ms_p99"] for _, r in recs if r.get("solve_ms_p99") is not None]
+    return {
+        "cells": len(recs),
+        "clean": sum(bool(r.get("clean")) for _, r in recs),
+        "worst_ratio": {p: worst(lambda c, p=p: c["knows_car"] and c["pose"] == p)
+                        for p in ESTIMATORS},
+        "worst_ratio_mismatch": worst(lambda c: not c["knows_car"]),
+        "off_track": total("off_track"),
+        "recoveries": total("recoveries"),
+        "spins": total("spins"),
+        "below_limit_laps": total("below_limit_laps"),
+        "over_cap_events": total("over_cap_events"),
+        "unfinished": sum(r.get("laps_completed", 0) < r.get("laps_requested", 1)
+                          for _, r in recs),
+        "errors": sum(bool(r.get("error")) for _, r in recs),
+        "worst_solve_ms_p99": max(p99) if p99 else None,
+    }
+
+
+def summary_line(method: str, s: dict[str, Any]) -> str:
+    """``robustness METHOD: N cells, clean k/N, worst ratio (truth/ekf/lidar) ..., ...``."""
+    ratios = "/".join(_fmt(s["worst_ratio"][p], ".2f") for p in ESTIMATORS)
+    mismatch = s["worst_ratio_mismatch"]
+    return (
+        f"robustness {method}: {s['cells']} cells, clean {s['clean']}/{s['cells']}, worst ratio "
+        f"({'/'.join(ESTIMATORS)}) {ratios}"
+        + ("" if mismatch is None else f", mismatch {mismatch:.2f}")
+        + f", off-track {s['off_track']}, recoveries {s['recoveries']}, spins {s['spins']}, "
+        f"below-limit {s['below_limit_laps']}, over-cap {s['over_cap_events']}, unfinished "
+        f"{s['unfinished']}, solve p99 max {_fmt(s['worst_solve_ms_p99'], '.2f')} ms"
+    )
+
+
+def worst_cells(cells: list[dict[str, Any]], methods: Iterable[str], n: int = WORST_ROWS
+                ) -> list[str]:
+    """The `n` worst (cell, method)s: most rule breaks, then fewest laps, then the ratio."""
+    rows = []
+    for c in cells:
+        for m in methods:
+            r = c["methods"].get(m)
+            if r is None:
+                continue
+            breaks = sum(r.get(k) or 0 for k in ("off_track", "recoveries", "spins",
+                                                  "below_limit_laps", "over_cap_events"))
+            missing = r.get("laps_requested", 0) - r.get("laps_completed", 0)
+            rows.append(((missing, breaks, r.get("ratio") or 0.0), c, m, r))
+    rows.sort(key=lambda x: x[0], reverse=True)
+    out = []
+    for _, c, m, r in rows[:n]:
+        why = r.get("error") or "; ".join(filter(None, [r.get("aborted", ""),
+                                                        *r.get("errors", [])]))
+        out.append(f"{c['track']:<13} {c['car']:<22} {c['pose']:<6} {m:<12} "
+                   f"{method_cell_text(r)}  {why}".rstrip())
+    return out
+
+
+GROUP_HEADER = (f"{'clean':>7} {'median':>6} {'worst':>6} {'off':>4} {'rec':>4} {'spn':>4} "
+                f"{'unf':>3}")
+
+
+def grouped_table(cells: list[dict[str, Any]], methods: Iterable[str],
+                  tracks_dir: Path = TRACKS_DIR) -> str:
+    """Rows = track group x car x pose; per method: clean cells of the group, the median
+    and worst ratio, off-track events, recoveries, spins and unfinished cells."""
+    methods = list(methods)
+    group_of = {s: g for g, specs in track_groups(tracks_dir).items() for s in specs}
+    groups: dict[tuple[str, str, str], list[dict]] = {}
+    for c in cells:
+        key = (group_of.get(c["track_spec"], "other"), c["car"], c["pose"])
+        groups.setdefault(key, []).append(c)
+    w = len(GROUP_HEADER)
+    lines = [f"{'':<44}" + "".join(f" | {m:^{w}}" for m in methods),
+             f"{'tracks':<14} {'car':<22} {'pose':<6}" + f" | {GROUP_HEADER}" * len(methods)]
+    for (group, car, pose), members in groups.items():
+        row = f"{group:<14} {car:<22} {pose:<6}"
+        for m in methods:
+            recs = [c["methods"][m] for c in members if m in c["methods"]]
+            ratios = [r["ratio"] for r in recs if r.get("ratio") is not None]
+            clean = f"{sum(bool(r.get('clean')) for r in recs)}/{len(recs)}"
+            unf = sum(r.get("laps_completed", 0) < r.get("laps_requested", 1) for r in recs)
+            row += (f" | {clean:>7} {_fmt(np.median(ratios) if ratios else None, '6.3f', '     -')}"
+                    f" {_fmt(max(ratios) if ratios else None, '6.3f', '     -')} "
+                    + " ".join(f"{sum(r.get(k) or 0 for r in recs):>4}"
+                               for k in ("off_track", "recoveries", "spins"))
+                    + f" {unf:>3}")
+        lines.append(row)
+    return "\n".join(lines)
+
+
+def wall_by_kind(cells: list[dict[str, Any]], tracks_dir: Path = TRACKS_DIR
+                 ) -> dict[str, dict[str, float]]:
+    """Wall time [s] of the cells by track group x pose and by car: total and per cell."""
+    group_of = {s: g for g, specs in track_groups(tracks_dir).items() for s in specs}
+    kinds: dict[str, list[float]] = {}
+    for c in cells:
+        for kind in (f"{group_of.get(c['track_spec'], 'other')}/{c['pose']}", f"car {c['car']}"):
+            kinds.setdefault(kind, []).append(c["wall_s"])
+    return {k: {"cells": len(v), "total_s": round(sum(v), 1),
+                "per_cell_s": round(sum(v) / len(v), 1)} for k, v in sorted(kinds.items())}
+
+
+def report(cells: list[dict[str, Any]], matrix: Matrix, timings: dict[str, float]
+           ) -> tuple[dict[str, Any], str]:
+    """The results document and the text (table, worst cells, wall times, summary)."""
+    order = {c.key: i for i, c in enumerate(matrix.cells())}
+    cells = sorted(cells, key=lambda c: order.get(c["key"], len(order)))
+    summary = {m: summarise(cells, m) for m in matrix.methods}
+    kinds = wall_by_kind(cells)
+    cap = _fmt(matrix.v_max_mps, "g", "the configuration's (4.18 m/s)")
+    lines = [
+        f"robustness matrix: {len(matrix.tracks)} tracks x {len(matrix.cars)} cars x "
+        f"{len(matrix.poses)} poses, methods {', '.join(matrix.methods)}, {matrix.laps} flying "
+        f"laps, cap {cap}",
+        "cars: " + "; ".join(f"{c} = {CARS[c].summary}" for c in matrix.cars),
+        "",
+        format_table(cells, matrix.methods),
+        "",
+        "worst cells:",
+        *worst_cells(cells, matrix.methods),
+        "",
+        "by track group x car x pose (median / worst ratio over the group's cells; unf = "
+        "unfinished cells):",
+        grouped_table(cells, matrix.methods),
+        "",
+        "wall time by kind of cell: " + ", ".join(
+            f"{k} {v['cells']} x {v['per_cell_s']:.1f} s" for k, v in kinds.items()),
+        "phases: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()),
+        "",
+        *(summary_line(m, summary[m]) for m in matrix.methods),
+    ]
+    doc = {
+        "matrix": {**asdict(matrix), "cells": len(matrix.cells())},
+        "summary": summary,
+        "cells": cells,
+        "meta": {"wall_time_s": {k: round(v, 1) for k, v in timings.items()},
+                 "wall_by_kind": kinds, "cars": {c: asdict(CARS[c]) for c in matrix.cars}},
+    }
+    return doc, "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------- running
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def make_laps(matrix: Matrix, jobs: int) -> dict[str, Any]:
+    """Phase 1: every lap of ``lap_tasks``, with a progress line each; the counts."""
+    tasks = lap_tasks(matrix)
+    _say(f"phase 1: {len(tasks)} minimum-time laps (cached ones are read) ...")
+    counts = {"laps": len(tasks), "solved": 0, "cached": 0, "failed": 0}
+    for k, out in enumerate(_map(solve_lap, tasks, jobs), start=1):
+        if not out["ok"]:
+            counts["failed"] += 1
+            what = f"FAILED {out['error'][:120]}"
+        elif out["cache_hit"]:
+            counts["cached"] += 1
+            what = "cached"
+        else:
+            counts["solved"] += 1
+            what = f"solved in {out['wall_s']:.1f} s (lap {out['lap_time_s']:.3f} s)"
+        _say(f"  [{k}/{len(tasks)}] {out['label']}: {what}")
+    return counts
+
+
+def _json_default(obj: Any) -> Any:
+    """numpy scalars as Python numbers in ``cells.jsonl``."""
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"not JSON: {type(obj).__name__}")
+
+
+def _cell_line(k: int, n: int, c: dict[str, Any]) -> str:
+    parts = []
+    for m, r in c["methods"].items():
+        if r.get("error"):
+            parts.append(f"{m} error")
+            continue
+        bad = [f"{r[x]} {x.replace('_', '-')}" for x in (
+            "off_track", "recoveries", "spins", "below_limit_laps", "over_cap_events")
+            if r.get(x)]
+        if r["laps_completed"] < r["laps_requested"]:
+            bad.append(f"{r['laps_completed']}/{r['laps_requested']} laps")
+        parts.append(f"{m} {_fmt(r.get('ratio'), '.3f')} "
+                     + ("clean" if r["clean"] else ", ".join(bad) or "rules"))
+    return (f"  [{k}/{n}] {c['track']} {c['car']} {c['pose']}: " + "; ".join(parts)
+            + f" ({c['wall_s']:.0f} s)")
+
+
+def run_matrix(matrix: Matrix, out_dir: Path, jobs: int = 2, resume: bool = False
+               ) -> tuple[dict[str, Any], str]:
+    """Both phases; writes ``cells.jsonl``, ``robustness.json`` and ``robustness.txt``
+    into `out_dir` and returns the document and the text."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    jsonl = out_dir / "cells.jsonl"
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    counts = make_laps(matrix, jobs)
+    timings["minimum-time laps"] = time.perf_counter() - t0
+    done: dict[str, dict] = {}
+    if resume and jsonl.exists():
+        for line in jsonl.read_text(encoding="utf-8").splitlines():
+            if line.strip():
+                c = json.loads(line)
+                done[c["key"]] = c
+    elif jsonl.exists():
+        jsonl.unlink()
+    wanted = {c.key for c in matrix.cells()}
+    cells = [c for k, c in done.items() if k in wanted]
+    todo = [c for c in matrix.cells() if c.key not in done]
+    # the longest tracks first, so the two workers finish together
+    todo.sort(key=lambda c: -_track(c.track).length_m)
+    _say(f"phase 2: {len(todo)} cells ({len(cells)} from {jsonl.name}) in {jobs} workers ...")
+    t1 = time.perf_counter()
+    with jsonl.open("a", encoding="utf-8") as fh:
+        for k, rec in enumerate(_map(_run_cell_task, [(c, matrix) for c in todo], jobs), 1):
+            fh.write(json.dumps(rec, default=_json_default) + "\n")
+            fh.flush()
+            cells.append(rec)
+            _say(_cell_line(k, len(todo), rec))
+    timings["cells"] = time.perf_counter() - t1
+    doc, text = report(cells, matrix, timings)
+    doc["meta"]["minimum_time_laps"] = counts
+    write_results(out_dir / "robustness.json", doc)
+    (out_dir / "robustness.txt").write_text(text + "\n", encoding="utf-8")
+    return doc, text
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.robustness", description=__doc__.splitlines()[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="cars: " + "; ".join(f"{c.name} = {c.summary}" for c in CARS.values()))
+    ap.add_argument("--quick", action="store_true",
+                    help=f"CI-sized subset: tracks {', '.join(QUICK_TRACKS)}, cars "
+                    f"{', '.join(QUICK_CARS)}, pose {', '.join(QUICK_POSES)} (--tracks, "
+                    "--cars, --poses given beside it replace its choice)")
+    ap.add_argument("--tracks", default=None,
+                    help="comma list of groups (all, builtin, f1tenth, generated), map416 or "
+                    "track specs (default all)")
+    ap.add_argument("--cars", default=None,
+                    help=f"comma list of {', '.join(CARS)} (default {','.join(DEFAULT_CARS)})")
+    ap.add_argument("--poses", default=None,
+                    help=f"comma list of {', '.join(ESTIMATORS)} (default all)")
+    ap.add_argument("--methods", default=",".join(NEAR_LIMIT_METHODS),
+                    help="comma list of registry methods (default the near-limit ones, "
+                    f"{','.join(NEAR_LIMIT_METHODS)})")
+    ap.add_argument("--laps", type=int, default=2, help="flying laps per cell (default 2)")
+    ap.add_argument("--v-max", type=float, default=None,
+                    help="every method's cap and the limit's top speed [m/s] (default the "
+                    "configuration's 4.18; e.g. 10 on the F1TENTH maps)")
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    ap.add_argument("--out", default=None, help="output folder (default runs/robust-<time>)")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the cells already in OUT/cells.jsonl, race only the others")
+    ap.add_argument("--tracks-dir", default=str(TRACKS_DIR),
+                    help=f"the shared track data (default {TRACKS_DIR})")
+    return ap
+
+
+def matrix_from_args(args: argparse.Namespace) -> Matrix:
+    """The matrix of the command line (BenchError on a wrong choice)."""
+    tracks_dir = Path(args.tracks_dir)
+    tracks = resolve_tracks(args.tracks or (",".join(QUICK_TRACKS) if args.quick else "all"),
+                            tracks_dir)
+    cars = _names(args.cars or ",".join(QUICK_CARS if args.quick else DEFAULT_CARS), CARS,
+                  "car")
+    poses = _names(args.poses or ",".join(QUICK_POSES if args.quick else ESTIMATORS),
+                   ESTIMATORS, "pose")
+    methods = parse_methods(args.methods)
+    if args.laps < 1:
+        raise BenchError("--laps must be at least 1")
+    if args.jobs < 1:
+        raise BenchError("--jobs must be at least 1")
+    if args.v_max is not None and not 1.0 < args.v_max <= 20.0:
+        raise BenchError("--v-max must be in (1, 20] m/s")
+    for spec in tracks:
+        load_track(spec)  # a wrong track fails here, before anything runs
+    return Matrix(tuple(tracks), tuple(cars), tuple(poses), tuple(methods), args.laps,
+                  args.v_max)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark; exit code 0, or 2 on bad arguments."""
+    args = build_parser().parse_args(argv)
+    try:
+        matrix = matrix_from_args(args)
+    except (BenchError, ValueError) as exc:
+        print(f"robustness: error: {exc}", file=sys.stderr)
+        return 2
+    variants = [m for m in matrix.methods if not METHODS[m].in_planner]
+    if variants:
+        _say(f"{', '.join(variants)}: raced as the base method with the configuration's "
+             "settings (no sweep, no tuned file)")
+    out = Path(args.out or Path("runs") / time.strftime("robust-%Y%m%d-%H%M%S"))
+    _doc, text = run_matrix(matrix, out, args.jobs, args.resume)
+    print(text)
+    print(f"results: {out / 'robustness.json'}, {out / 'robustness.txt'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

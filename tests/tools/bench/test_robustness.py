@@ -1,0 +1,203 @@
+"""The robustness benchmark (``benchmarks/robustness.py``): its cell and summary functions
+(spin detection on crafted slip traces, the ratio, the counts, the cap), and a tiny matrix
+raced in process (slow)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks import robustness as rb
+from services.planner import limit_request
+from shared.config import config_from_dict
+from shared.config.methods import CIMPCC_LINE, RACELINE
+from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED
+from shared.evaluation import LapRecord, MethodRun, Trace, results_document
+
+PEAK = 0.1
+DT = 0.05
+
+
+def _slip_trace(over_s: float, dt: float = DT, total_s: float = 2.0, sign: float = 1.0
+                ) -> tuple[list[float], list[float]]:
+    """A slip trace sampled every `dt`: under the peak, then `over_s` beyond it from 0.5 s."""
+    t = np.arange(round(total_s / dt)) * dt
+    slip = np.full(t.shape, 0.5 * PEAK)
+    n_over = round(over_s / dt)
+    start = round(0.5 / dt)
+    slip[start:start + n_over] = sign * 1.5 * PEAK
+    return t.tolist(), slip.tolist()
+
+
+@pytest.mark.parametrize("dt", [0.05, 0.01])
+def test_a_short_slide_is_no_spin_and_a_long_one_is(dt: float) -> None:
+    assert rb.spin_events(*_slip_trace(0.15, dt), PEAK) == 0
+    assert rb.spin_events(*_slip_trace(0.25, dt), PEAK) == 1
+    assert rb.spin_events(*_slip_trace(0.25, dt, sign=-1.0), PEAK) == 1  # either direction
+
+
+def test_spins_are_counted_per_slide_and_at_the_trace_end() -> None:
+    t, slip = _slip_trace(0.3)
+    slip = np.asarray(slip)
+    slip[20:26] = -2 * PEAK  # a second slide of 0.3 s
+    slip[-5:] = 2 * PEAK  # 0.25 s beyond the peak until the trace ends
+    assert rb.spin_events(t, slip, PEAK) == 3
+    assert rb.spin_events([], [], PEAK) == 0
+    assert rb.spin_events(t, np.zeros(len(t)), PEAK) == 0
+
+
+def test_the_rear_peak_slip_of_each_tyre_model() -> None:
+    assert rb.rear_peak_slip_rad(F1TENTH_GYM) == pytest.approx(
+        1.0 / F1TENTH_GYM.cornering_stiffness_rear_per_rad)
+    # the identified rear: B 20, C 1.5, E 0 peaks at B alpha = tan(pi / (2 C))
+    assert rb.rear_peak_slip_rad(REAL_CAR_IDENTIFIED) == pytest.approx(
+        math.tan(math.pi / 3.0) / 20.0, rel=1e-6)
+
+
+def _run(laps: list[float], off: int = 0, recoveries: int = 0, slip_over_s: float = 0.0,
+         requested: int | None = None, speed: float = 4.0) -> MethodRun:
+    t, slip = _slip_trace(slip_over_s)
+    trace = Trace(t_s=t, speed_mps=[speed] * len(t), rear_slip_rad=slip)
+    records = [LapRecord(x, 30.0 / x, 0, 0.1) for x in laps]
+    return MethodRun("m", records, trace, [0.5, 0.7, 1.9], 0,
+                     requested if requested is not None else len(laps),
+                     {"recoveries": recoveries}, off, 0)
+
+
+def _record(run: MethodRun, limit_s: float = 7.0, cap: float = 4.18) -> dict:
+    doc = results_document("t", 30.0, [run], reference={"min_time_lap_s": limit_s,
+                                                         "v_max_mps": cap})
+    return rb.method_record(run, doc["methods"]["m"], PEAK)
+
+
+def test_a_method_record_has_the_ratio_the_counts_and_the_verdict() -> None:
+    rec = _record(_run([7.07, 7.21]))
+    assert rec["ratio"] == pytest.approx(7.14 / 7.0)
+    assert (rec["laps_completed"], rec["laps_requested"]) == (2, 2)
+    assert (rec["off_track"], rec["recoveries"], rec["spins"]) == (0, 0, 0)
+    assert rec["below_limit_laps"] == 0 and rec["over_cap_events"] == 0
+    assert rec["solve_ms_median"] == pytest.approx(0.7)
+    assert rec["clean"]
+    for run in (_run([7.1, 7.2], off=1), _run([7.1, 7.2], recoveries=2),
+                _run([7.1, 7.2], slip_over_s=0.3), _run([7.1], requested=2),
+                _run([6.9, 7.1]), _run([7.1, 7.2], speed=4.3)):
+        assert not _record(run)["clean"]
+    assert _record(_run([7.1, 7.2], slip_over_s=0.3))["spins"] == 1
+    assert _record(_run([6.9, 7.1]))["below_limit_laps"] == 1
+    assert _record(_run([7.1, 7.2], speed=4.3))["over_cap_events"] == 1
+
+
+def _cell(track: str, car: str, pose: str, **recs: dict) -> dict:
+    return {"key": f"{track}|{car}|{pose}", "track": track, "track_spec": track, "car": car,
+            "knows_car": rb.CARS[car].knows_car, "pose": pose, "methods": recs,
+            "wall_s": 2.0}
+
+
+def _rec(ratio: float | None, clean: bool = True, **kw) -> dict:
+    base = {"ratio": ratio, "laps_completed": 2, "laps_requested": 2, "off_track": 0,
+            "recoveries": 0, "spins": 0, "below_limit_laps": 0, "over_cap_events": 0,
+            "solve_ms_median": 0.8, "solve_ms_p99": 1.5, "clean": clean, "errors": [],
+            "aborted": ""}
+    return {**base, **kw}
+
+
+def test_the_summary_counts_and_worst_ratios() -> None:
+    m = CIMPCC_LINE
+    cells = [
+        _cell("a", "default", "truth", **{m: _rec(1.01)}),
+        _cell("a", "default", "ekf", **{m: _rec(1.04, False, off_track=3, spins=1)}),
+        _cell("a", "identified", "lidar", **{m: _rec(1.07)}),
+        _cell("a", "identified-on-default", "truth",
+              **{m: _rec(1.30, False, laps_completed=1, recoveries=2)}),
+        _cell("b", "default", "truth", **{m: _rec(None, False, laps_completed=0,
+                                                  solve_ms_p99=2.5)}),
+    ]
+    s = rb.summarise(cells, m)
+    assert s["cells"] == 5 and s["clean"] == 2
+    assert s["worst_ratio"] == {"truth": 1.01, "ekf": 1.04, "lidar": 1.07}
+    assert s["worst_ratio_mismatch"] == 1.30
+    assert (s["off_track"], s["spins"], s["recoveries"], s["unfinished"]) == (3, 1, 2, 2)
+    assert s["worst_solve_ms_p99"] == 2.5
+    line = rb.summary_line(m, s)
+    assert line == (
+        f"robustness {m}: 5 cells, clean 2/5, worst ratio (truth/ekf/lidar) 1.01/1.04/1.07, "
+        "mismatch 1.30, off-track 3, recoveries 2, spins 1, below-limit 0, over-cap 0, "
+        "unfinished 2, solve p99 max 2.50 ms")
+    table = rb.format_table(cells, [m, RACELINE]).splitlines()
+    assert len(table) == 3 + len(cells) + 1  # two header lines, a rule, the rows, the legend
+    assert all(len(row) == len(table[1]) for row in table[3:-1])
+    grouped = rb.grouped_table(cells, [m]).splitlines()
+    # two header lines, one row per (group, car, pose): tracks a and b are one group here
+    assert len(grouped) == 2 + 4
+    assert grouped[2].split()[:7] == ["other", "default", "truth", "|", "1/2", "1.010", "1.010"]
+    worst = rb.worst_cells(cells, [m])
+    assert worst[0].startswith("b ") and worst[1].startswith("a ")  # fewest laps first
+
+
+def test_the_cap_follows_v_max_for_every_method_and_the_limit() -> None:
+    cfg = rb.config_for("default", 10.0)
+    assert cfg.planner.cimpcc.v_up_mps[0] == pytest.approx(10.0)
+    assert cfg.planner.cimpcc.v_up_mps[0] == pytest.approx(1.1 * cfg.planner.cimpcc.v_up_mps[1],
+                                                           abs=0.01)
+    assert cfg.planner.cimpcc_line.v_max_mps == pytest.approx(10.0)
+    assert cfg.planner.raceline.v_max_mps == pytest.approx(10.0)
+    assert limit_request(cfg.planner, cfg.simulator.vehicle).settings.v_max_mps == (
+        pytest.approx(10.0))
+    plain = rb.config_for("default")
+    assert plain.planner == config_from_dict({}).planner  # no --v-max: the config's own
+    assert plain.planner.cimpcc.v_up_mps[0] == pytest.approx(4.18)
+
+
+def test_the_cars_of_the_matrix() -> None:
+    assert rb.config_for("linear").vehicle.tyre_model == "linear"
+    assert not rb.config_for("linear").simulates_another_car
+    told = rb.config_for("identified")
+    assert told.vehicle.tyre_model == "pacejka" and not told.simulates_another_car
+    mismatch = rb.config_for("identified-on-default")
+    assert mismatch.simulates_another_car
+    assert mismatch.vehicle == F1TENTH_GYM
+    assert mismatch.simulator.vehicle.tyre_model == "pacejka"
+
+
+def test_the_matrix_and_its_laps(tmp_path: Path) -> None:
+    groups = rb.track_groups(tmp_path)
+    assert [len(groups[g]) for g in ("builtin", "f1tenth", "generated")] == [2, 6, 20]
+    assert len(rb.resolve_tracks("all", tmp_path)) == 28
+    assert rb.resolve_tracks("map416,paperlike,builtin", tmp_path) == list(groups["builtin"])
+    matrix = rb.Matrix(("paperlike",), ("default", "identified-on-default"), ("truth", "ekf"),
+                       (CIMPCC_LINE, RACELINE))
+    assert len(matrix.cells()) == 4
+    # the limits of both simulated cars, the planners' (default) lines once
+    uses = sorted(t.use for t in rb.lap_tasks(matrix))
+    assert uses == sorted([CIMPCC_LINE, RACELINE, "limit", "limit"])
+
+
+@pytest.mark.slow
+def test_a_tiny_matrix_races_and_reports(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "robust"
+    code = rb.main(["--tracks", "paperlike", "--cars", "default", "--poses", "truth",
+                    "--methods", RACELINE, "--laps", "1", "--jobs", "1", "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    doc = json.loads((out / "robustness.json").read_text(encoding="utf-8"))
+    assert doc["matrix"]["cells"] == 1 and len(doc["cells"]) == 1
+    cell = doc["cells"][0]
+    assert (cell["track"], cell["car"], cell["pose"]) == ("paperlike", "default", "truth")
+    rec = cell["methods"][RACELINE]
+    assert rec["laps_completed"] == 1 and rec["ratio"] is not None and rec["ratio"] > 0.99
+    assert len((out / "cells.jsonl").read_text(encoding="utf-8").splitlines()) == 1
+    text = (out / "robustness.txt").read_text(encoding="utf-8")
+    assert text.strip() in printed
+    rows = [r for r in text.splitlines() if r.startswith("paperlike ")]
+    assert len(rows) == 2  # the table's row and the worst-cells row
+    summary = text.strip().splitlines()[-1]
+    assert re.fullmatch(
+        rf"robustness {RACELINE}: 1 cells, clean [01]/1, worst ratio \(truth/ekf/lidar\) "
+        r"\d\.\d\d/-/-, off-track \d+, recoveries \d+, spins \d+, below-limit \d+, "
+        r"over-cap \d+, unfinished [01], solve p99 max \d+\.\d\d ms", summary), summary
+    assert doc["summary"][RACELINE]["cells"] == 1
