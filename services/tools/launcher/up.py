@@ -12,9 +12,9 @@ the lap being driven and the planned speed (from ``planner/plan``: one line rewr
 place on a TTY, a line every 10 s otherwise); on Ctrl-C the table of the laps finished so
 far, then the stack stops (exit code 130). It cannot start (exit code 2, one line on
 stderr, nothing started, no empty run folder left) when the run folder cannot be written,
-the hub's port is already in use, or the services' ``[bus] connect`` endpoints are not
-where this hub listens: ``up`` is the hub, so a hub nobody can reach is a configuration
-error to fix, not something to wait for.
+the hub's port or the ``--serve`` port is already in use, or the services' ``[bus] connect``
+endpoints are not where this hub listens: ``up`` is the hub, so a hub nobody can reach is
+a configuration error to fix, not something to wait for.
 
 Before the planner process starts, ``up`` makes the minimum-time lap its method races on
 (``services.planner.ensure_artefacts``: ``cimpcc-line``, a ``min_time`` raceline; a line
@@ -49,6 +49,7 @@ from shared.messages import (
     SimActionName,
     SimControl,
 )
+from shared.net import loopback_port_taken
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
 from shared.roster import up_names
 from shared.service import Service, publishes, subscribes
@@ -110,6 +111,12 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
     nothing started, no empty run folder left), else non-zero."""
     if opts.laps < 1:
         return _cannot_start(f"--laps must be at least 1, got {opts.laps}")
+    serve = _serve_port(opts)
+    if serve is not None and loopback_port_taken(serve):
+        return _cannot_start(
+            f"--serve {serve}: 127.0.0.1:{serve} is already in use (a Rerun viewer or another "
+            "stack serving there?); choose another port, e.g. --serve 9877"
+        )
     track = load_track(cfg.track.source)
     run_dir = opts.run_dir or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     created = missing_dirs(run_dir)
@@ -143,6 +150,17 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
             flush=True,
         )
         return _race(cfg, opts, bus, track, run_dir, stop_requested)
+
+
+def _serve_port(opts: UpOptions) -> int | None:
+    """The live-telemetry port telemetry is to serve on (``--serve PORT``), or None."""
+    args = opts.telemetry_args
+    if "--serve" in args and args.index("--serve") + 1 < len(args):
+        try:
+            return int(args[args.index("--serve") + 1])
+        except ValueError:
+            return None
+    return None
 
 
 def _say(line: str) -> None:
