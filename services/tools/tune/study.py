@@ -46,6 +46,8 @@ IDENTITY_KEYS = ("method", "track", "track_fingerprint", "objective", "v_max_mps
 STARTUP_TRIALS = 10
 #: Seconds a SQLite writer waits for another process's lock.
 SQLITE_TIMEOUT_S = 60.0
+#: Times a worker retries opening a storage whose tables another worker is creating.
+SCHEMA_RACE_RETRIES = 5
 
 log = logging.getLogger("racestack.tune")
 
@@ -69,10 +71,23 @@ def make_storage(url: str) -> optuna.storages.RDBStorage:
     kwargs: dict[str, Any] = {}
     if url.startswith("sqlite"):
         kwargs = {"connect_args": {"timeout": SQLITE_TIMEOUT_S}}
-    try:
-        return optuna.storages.RDBStorage(url, engine_kwargs=kwargs)
-    except Exception as exc:  # SQLAlchemy raises many kinds for a bad URL or database
-        raise StudyMismatchError(f"cannot open storage {url!r}: {_one_line(exc)}") from None
+    for attempt in range(SCHEMA_RACE_RETRIES + 1):
+        try:
+            return optuna.storages.RDBStorage(url, engine_kwargs=kwargs)
+        except Exception as exc:  # SQLAlchemy raises many kinds for a bad URL or database
+            if attempt < SCHEMA_RACE_RETRIES and _schema_race(exc):
+                # two workers started together both create the tables; the loser retries
+                # and finds the tables the other one made
+                time.sleep(0.2 * (attempt + 1))
+                continue
+            raise StudyMismatchError(f"cannot open storage {url!r}: {_one_line(exc)}") from None
+    raise AssertionError("unreachable")
+
+
+def _schema_race(exc: BaseException) -> bool:
+    """The error of a worker that lost the race to create a new database's tables."""
+    text = str(exc).lower()
+    return "already exists" in text or "duplicate" in text or "locked" in text
 
 
 def _one_line(exc: BaseException) -> str:

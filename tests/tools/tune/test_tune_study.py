@@ -117,6 +117,37 @@ def test_a_bad_storage_url_is_a_clear_error() -> None:
         st.make_storage("nosuchdb://x")
 
 
+def test_a_worker_that_loses_the_table_creation_race_retries(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two workers started at once on a new database: the second sees 'table already exists'."""
+    real = st.optuna.storages.RDBStorage
+    calls = []
+
+    def racing(url, **kwargs):
+        calls.append(url)
+        if len(calls) == 1:
+            raise RuntimeError("(sqlite3.OperationalError) table studies already exists")
+        return real(url, **kwargs)
+
+    monkeypatch.setattr(st.optuna.storages, "RDBStorage", racing)
+    monkeypatch.setattr(st.time, "sleep", lambda s: None)
+    assert st.make_storage(st.default_storage(tmp_path)) is not None
+    assert len(calls) == 2
+
+
+def test_a_storage_error_that_persists_is_not_retried_forever(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    def always(url, **kwargs):
+        raise RuntimeError("table studies already exists")
+
+    monkeypatch.setattr(st.optuna.storages, "RDBStorage", always)
+    monkeypatch.setattr(st.time, "sleep", lambda s: None)
+    with pytest.raises(st.StudyMismatchError, match="already exists"):
+        st.make_storage("sqlite:///x.db")
+
+
 @pytest.mark.slow
 def test_outputs_best_toml_loads_and_history_is_written(tmp_path: Path) -> None:
     study = _open(tmp_path)
