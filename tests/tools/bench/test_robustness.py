@@ -23,14 +23,14 @@ PEAK = 0.1
 DT = 0.05
 
 
-def _slip_trace(over_s: float, dt: float = DT, total_s: float = 2.0, sign: float = 1.0
-                ) -> tuple[list[float], list[float]]:
+def _slip_trace(over_s: float, dt: float = DT, total_s: float = 2.0, sign: float = 1.0,
+                level: float = 2.0) -> tuple[list[float], list[float]]:
     """A slip trace sampled every `dt`: under the peak, then `over_s` beyond it from 0.5 s."""
     t = np.arange(round(total_s / dt)) * dt
     slip = np.full(t.shape, 0.5 * PEAK)
     n_over = round(over_s / dt)
     start = round(0.5 / dt)
-    slip[start:start + n_over] = sign * 1.5 * PEAK
+    slip[start:start + n_over] = sign * level * PEAK
     return t.tolist(), slip.tolist()
 
 
@@ -39,6 +39,12 @@ def test_a_short_slide_is_no_spin_and_a_long_one_is(dt: float) -> None:
     assert rb.spin_events(*_slip_trace(0.15, dt), PEAK) == 0
     assert rb.spin_events(*_slip_trace(0.25, dt), PEAK) == 1
     assert rb.spin_events(*_slip_trace(0.25, dt, sign=-1.0), PEAK) == 1  # either direction
+
+
+def test_cornering_just_past_the_peak_is_no_spin() -> None:
+    """Saturated tyres hold the slip just past the peak at the friction limit: not a spin."""
+    assert rb.spin_events(*_slip_trace(1.0, level=1.3), PEAK) == 0
+    assert rb.spin_events(*_slip_trace(1.0, level=1.6), PEAK) == 1
 
 
 def test_spins_are_counted_per_slide_and_at_the_trace_end() -> None:
