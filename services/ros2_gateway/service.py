@@ -41,8 +41,23 @@ from services.ros2_gateway.convert import (
     to_native,
     to_ros,
 )
-from services.ros2_gateway.naming import GID_LEN, Attachment, uses_attachment, zenoh_key
-from services.ros2_gateway.raw import RawPublisher, RawSubscriber
+from services.ros2_gateway.liveliness import (
+    PUBLISHER,
+    SUBSCRIPTION,
+    NodeId,
+    endpoint_token,
+    full_topic_name,
+    node_token,
+)
+from services.ros2_gateway.naming import (
+    GID_LEN,
+    Attachment,
+    dds_type_name,
+    type_hash,
+    uses_attachment,
+    zenoh_key,
+)
+from services.ros2_gateway.raw import RawPublisher, RawSubscriber, RawToken, session_zid
 from services.ros2_gateway.typestore import make_typestore
 from shared.bus import Bus, DropOldestQueue, Subscription, TypedPublisher
 from shared.car import CAR
@@ -91,6 +106,7 @@ class _Outbound:
     gid: bytes = field(default_factory=lambda: os.urandom(GID_LEN))
     seq: int = 0
     published: int = 0
+    skipped_invalid: int = 0
 
 
 class Ros2GatewayService(Service):
@@ -161,6 +177,35 @@ class Ros2GatewayService(Service):
                         uses_attachment(topic, settings),
                     )
                 )
+        self.tokens: list[RawToken] = [RawToken(self.session, k) for k in self.graph_tokens()]
+
+    def graph_tokens(self) -> list[str]:
+        """rmw_zenoh's liveliness tokens of the gateway (``liveliness``): its node, then one
+        publisher (outbound) or subscription (inbound) per topic of the ``rmw_zenoh`` scheme
+        without an explicit ``key``; none when there is no such topic."""
+        s = self.settings
+        ros = [
+            (i, t)
+            for i, t in enumerate(s.topics)
+            if (t.scheme or s.scheme) == "rmw_zenoh" and t.key is None
+        ]
+        if not ros:
+            return []
+        node = NodeId(s.domain_id, session_zid(self.session), s.node_name, s.namespace)
+        tokens = [node_token(node)]
+        for i, t in ros:
+            kind = PUBLISHER if t.direction == "out" else SUBSCRIPTION
+            tokens.append(
+                endpoint_token(
+                    node,
+                    node.nid + 1 + i,
+                    kind,
+                    full_topic_name(t.topic),
+                    dds_type_name(t.type),
+                    type_hash(t.type, s.distro, self.ts),
+                )
+            )
+        return tokens
 
     @classmethod
     def body(cls, cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
@@ -191,7 +236,14 @@ class Ros2GatewayService(Service):
         route.received += 1
         try:
             ros = decode_cdr(self.ts, payload, route.topic.type)
-            record = to_native(ros, route.topic, wheelbase_m=self.wheelbase_m, receive_s=receive_s)
+            record = to_native(
+                ros,
+                route.topic,
+                wheelbase_m=self.wheelbase_m,
+                receive_s=receive_s,
+                max_age_s=self.settings.max_stamp_age_s,
+                max_ahead_s=self.settings.max_stamp_ahead_s,
+            )
         except CdrError as exc:
             self.bus.drops.record(route.key, exc.reason, exc.detail)
             return False
@@ -210,6 +262,9 @@ class Ros2GatewayService(Service):
         n = 0
         for route in self.outbound:
             for record in route.sub.drain():
+                if isinstance(record, State) and not record.valid:
+                    route.skipped_invalid += 1  # the bridge has lost the car: no pose to show
+                    continue
                 with self.bus.faults.guard(route.key):
                     payload = encode_cdr(
                         self.ts, to_ros(self.ts, record, route.topic), route.topic.type
@@ -258,6 +313,8 @@ class Ros2GatewayService(Service):
             out[f"in.{r.key}.published"] = r.published
         for o in self.outbound:
             out[f"out.{o.key}.published"] = o.published
+            if o.topic.native == "state":
+                out[f"out.{o.key}.skipped_invalid"] = o.skipped_invalid
         out["inbox_dropped"] = self.inbox.dropped
         out["bus_drops"] = self.bus.drops.total
         out["own_faults"] = self.bus.faults.total
