@@ -13,7 +13,11 @@ stack's) in the map frame; headings are the yaw of the quaternion,
 cos(yaw/2))``. Twists are in the child (body) frame, as ROS's Odometry defines them.
 
 Inbound (ROS -> record; every record validates itself, so a value beyond the contract raises
-``MessageError``):
+``MessageError``). With the arrival time given, a header stamp more than ``max_age_s`` before
+or ``max_ahead_s`` after it raises ``CdrError`` (``stale_stamp``, ``future_stamp``:
+``check_stamp``); a pose's quaternion is normalised before its yaw is read, and one with no
+heading (norm below ``MIN_QUATERNION_NORM``, not finite) raises ``bad_quaternion``
+(``checked_yaw``):
 
 * ``PoseStamped`` -> ``Pose`` (cov None); ``PoseWithCovarianceStamped`` and ``Odometry``
   (``native = "vehicle/pose"``) -> ``Pose`` with ``cov`` = rows/columns (x, y, yaw) = (0, 1, 5)
@@ -30,7 +34,7 @@ Inbound (ROS -> record; every record validates itself, so a value beyond the con
 Outbound (record -> ROS object; ``encode_cdr`` serializes little endian):
 
 * ``State`` -> ``nav_msgs/Odometry`` (pose x, y, yaw; twist linear.x = speed, angular.z =
-  yaw rate; covariances 0 = unknown);
+  yaw rate; covariances 0 = unknown; the service sends none while ``state.valid`` is false);
 * ``Plan`` -> ``nav_msgs/Path`` (one ``PoseStamped`` per horizon row X, Y, phi, all stamped
   with the plan's stamp);
 * ``DriveCmd`` -> ``ackermann_msgs/AckermannDriveStamped`` (``drive.speed``,
@@ -76,7 +80,9 @@ class CdrError(ValueError):
     Attributes:
         reason: ``not_cdr`` (no CDR encapsulation header), ``size_mismatch`` (decodes with
             bytes left over: another type, or garbage after a message), ``bad_cdr``
-            (truncated or garbage inside), ``bad_stamp`` (sec < 0 or nanosec >= 1e9).
+            (truncated or garbage inside), ``bad_stamp`` (sec < 0 or nanosec >= 1e9),
+            ``stale_stamp`` / ``future_stamp`` (far from the arrival time),
+            ``bad_quaternion`` (an orientation without a heading).
     """
 
     def __init__(self, reason: str, detail: str) -> None:

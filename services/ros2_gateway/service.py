@@ -8,12 +8,18 @@ it carries every ``[[ros2.topics]]`` entry one way:
   are decoded with rosbags, converted (``convert.to_native``) and published on the native key
   (``vehicle/pose``, ``vehicle/odom``, ``vehicle/imu``, ``vehicle/scan``), stamped with
   ``header.stamp``. A payload that is not CDR, is truncated, is of another type (bytes left
-  over), has a bad stamp or values the contract rejects is dropped and counted per (ROS
-  key, reason) in ``bus.drops``; the service's ``DropReporter`` says so on ``events/log``.
+  over), has a bad stamp (negative, older than ``[ros2] max_stamp_age_s`` or further ahead
+  than ``max_stamp_ahead_s`` of the gateway's clock), a pose without a heading (a zero
+  quaternion) or values the contract rejects is dropped and counted per (ROS key, reason)
+  in ``bus.drops``; the service's ``DropReporter`` says so on ``events/log``.
 * outbound (``direction = "out"``): ``state``, ``planner/plan`` and ``cmd/drive`` records
   become ``nav_msgs/Odometry``, ``nav_msgs/Path`` and
   ``ackermann_msgs/AckermannDriveStamped`` in CDR on the topic's key (with rmw_zenoh's
-  attachment under that scheme), so RViz, Foxglove and rosbag see the race.
+  attachment under that scheme), so RViz, Foxglove and rosbag see the race. A ``state``
+  with ``valid = false`` is not sent (counted: ``skipped_invalid``).
+* under ``rmw_zenoh`` the gateway is a ROS node: it declares rmw_zenoh's liveliness tokens
+  (``liveliness``: the node, one publisher per outbound and one subscription per inbound
+  topic), so ``ros2 topic list`` and rviz2 find the topics (``graph_tokens``).
 
 Threads: Zenoh's callback threads only enqueue (inbound payloads into a bounded queue that
 drops the oldest, native records into their subscriptions' queues); the main thread

@@ -27,9 +27,19 @@ native key of the contract (``native``)::
          planner/plan -> nav_msgs/msg/Path
          cmd/drive    -> ackermann_msgs/msg/AckermannDriveStamped
 
+The three default outbound topics (``default_topics``: ``/odom``, ``/plan``, ``/drive``) stay
+beside the configured ones: an entry with a default's ROS name (without the leading ``/``)
+or Zenoh key replaces it, and ``defaults`` lists the ones kept (``[]``: none). After loading,
+``topics`` holds every topic, the kept defaults after the configured ones. An outbound entry
+without ``frame_id`` takes its native's (``DEFAULT_FRAME``: ``state`` and ``planner/plan`` in
+``map``, ``cmd/drive`` in ``base_link``).
+
 Stamps: ``header.stamp`` (sec, nanosec since the Unix epoch) is the stack's ``stamp_s`` (wall
 clock) and back; ``stamp = "receive"`` on an inbound topic uses the gateway's clock at
-arrival instead (for sources whose stamps are zero or on another clock).
+arrival instead (for sources whose stamps are zero or on another clock). With ``header``,
+a stamp older than ``max_stamp_age_s`` or further ahead than ``max_stamp_ahead_s`` at arrival
+is dropped. Under ``rmw_zenoh`` the gateway announces itself as the ROS node ``node_name`` in
+``namespace`` (rmw_zenoh's liveliness tokens).
 """
 
 from __future__ import annotations
