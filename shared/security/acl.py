@@ -25,9 +25,9 @@ jazzy's type hash of an outbound rmw_zenoh key):
 Every identity may declare subscribers on them, and the hub forwards puts and subscriber
 declarations on them (egress). When a topic uses the ``rmw_zenoh`` scheme, rmw_zenoh's graph
 ``@ros2_lv/<domain>/**`` gets rules too: everyone may watch it and ask for it (liveliness
-subscribers, queries; forwarded with the tokens and replies), only ros2_gateway and ros2 may
-declare tokens there (the gateway's node and endpoints, the ROS side's nodes). A ROS key
-that would reach into ``racestack/`` is refused
+subscribers, queries on all of ``@ros2_lv/**``; forwarded with the tokens and replies), only
+ros2_gateway and ros2 may declare tokens in the domain (the gateway's node and endpoints,
+the ROS side's nodes). A ROS key that would reach into ``racestack/`` is refused
 (``ValueError``): the ROS side must never get put rights on the stack's own keys.
 
 Besides: every identity may declare subscribers and liveliness subscribers and make liveliness
@@ -127,6 +127,12 @@ ROS2_GRAPH_FORWARD_MESSAGES: tuple[str, ...] = (
     "liveliness_query",
     "reply",
 )
+
+
+#: Every domain's graph: watching and asking (read only) is allowed on all of it, so that a
+#: query of ``@ros2_lv/**`` (not only rmw_zenoh's own ``@ros2_lv/<domain>/**``) is not
+#: denied; declaring tokens only in the configured domain.
+ROS2_GRAPH_ALL = "@ros2_lv/**"
 
 
 def ros2_graph_key(ros2: Ros2Settings) -> str | None:
@@ -285,14 +291,14 @@ def access_control(
                     "messages": list(ROS2_GRAPH_LISTEN_MESSAGES),
                     "flows": ["ingress"],
                     "permission": "allow",
-                    "key_exprs": [graph],
+                    "key_exprs": [ROS2_GRAPH_ALL],
                 },
                 {
                     "id": "ros2_graph_forward",
                     "messages": list(ROS2_GRAPH_FORWARD_MESSAGES),
                     "flows": ["egress"],
                     "permission": "allow",
-                    "key_exprs": [graph],
+                    "key_exprs": [ROS2_GRAPH_ALL],
                 },
                 {
                     "id": "ros2_graph_token",

@@ -154,5 +154,6 @@ def test_rmw_zenoh_graph_tokens_only_from_the_gateway_and_the_ros_side() -> None
     assert writers == ["ros2", "ros2_gateway"]
     assert all("ros2_graph_listen" in ids and "ros2_graph_forward" in ids for ids in pol.values())
     assert "liveliness_token" not in rules["ros2_graph_listen"]["messages"]
+    assert rules["ros2_graph_listen"]["key_exprs"] == ["@ros2_lv/**"]  # watching: any domain
     plain, _ = rules_and_policies(access_control("car0", ros2=Ros2Settings()))
     assert not any(r.startswith("ros2_graph") for r in plain)
