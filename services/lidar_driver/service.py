@@ -211,7 +211,7 @@ class LidarService(Service):
             )
         d = self.session.decoder.counters
         c = self.session.counters
-        total = d.errors + c.bad_scans
+        total = d.errors + c.bad_scans + d.garbage_bytes  # noise grows the bytes at least
         if self._input_report.check(total, self.clock()):
             self.say(
                 LogLevelName.WARNING,

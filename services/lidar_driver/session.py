@@ -53,7 +53,15 @@ from shared.hokuyo.scan import (
 )
 from shared.hokuyo.timesync import SensorClock
 
-__all__ = ["LidarSession", "Note", "Phase", "Reconnect", "ScanReady", "SessionCounters"]
+__all__ = [
+    "LidarSession",
+    "Note",
+    "Phase",
+    "Reconnect",
+    "ScanReady",
+    "SessionCounters",
+    "stream_rate_hz",
+]
 
 
 class Phase(StrEnum):
@@ -138,6 +146,14 @@ class _Step:
 _ANY = None
 _OK = frozenset({STATUS_OK})
 
+
+
+def stream_rate_hz(scan_rpm: float, skip: int) -> float:
+    """Scans per second an ``MD``/``ME`` stream delivers: the motor turns ``scan_rpm / 60``
+    times a second (``PP`` SCAN; 2400 rpm = 40 Hz on the UTM-30LX), one scan a turn, and
+    the skip count of the request (SCIP 2.0: the scans left out between two sent ones, 0 =
+    every scan, 1 = every other one) divides that by ``1 + skip``."""
+    return scan_rpm / 60.0 / (1 + skip)
 
 class LidarSession:
     """The handshake and the stream of one sensor (module docstring)."""
@@ -284,12 +300,12 @@ class LidarSession:
         assert p is not None and r is not None
         g = self._geometry_of(r)
         who = self.identity.get("PROD") or p.model
-        rate = 60.0 / p.scan_rpm / (1 + r.skip)
         return (
             f"lidar {who} ({self.identity.get('SERI', '?')}, firmware "
             f"{self.identity.get('FIRM', '?')}): {g.beams} beams from "
             f"{g.angle_min_rad:+.3f} rad by {g.angle_increment_rad:+.5f} rad at "
-            f"{1.0 / rate:.1f} Hz, stamps from {self.settings.stamp_source}"
+            f"{stream_rate_hz(p.scan_rpm, r.skip):.1f} Hz, stamps from "
+            f"{self.settings.stamp_source}"
         )
 
     def _geometry_of(self, req: ScanRequest) -> BeamGeometry:

@@ -13,7 +13,11 @@ stack's) in the map frame; headings are the yaw of the quaternion,
 cos(yaw/2))``. Twists are in the child (body) frame, as ROS's Odometry defines them.
 
 Inbound (ROS -> record; every record validates itself, so a value beyond the contract raises
-``MessageError``):
+``MessageError``). With the arrival time given, a header stamp more than ``max_age_s`` before
+or ``max_ahead_s`` after it raises ``CdrError`` (``stale_stamp``, ``future_stamp``:
+``check_stamp``); a pose's quaternion is normalised before its yaw is read, and one with no
+heading (norm below ``MIN_QUATERNION_NORM``, not finite) raises ``bad_quaternion``
+(``checked_yaw``):
 
 * ``PoseStamped`` -> ``Pose`` (cov None); ``PoseWithCovarianceStamped`` and ``Odometry``
   (``native = "vehicle/pose"``) -> ``Pose`` with ``cov`` = rows/columns (x, y, yaw) = (0, 1, 5)
@@ -30,7 +34,7 @@ Inbound (ROS -> record; every record validates itself, so a value beyond the con
 Outbound (record -> ROS object; ``encode_cdr`` serializes little endian):
 
 * ``State`` -> ``nav_msgs/Odometry`` (pose x, y, yaw; twist linear.x = speed, angular.z =
-  yaw rate; covariances 0 = unknown);
+  yaw rate; covariances 0 = unknown; the service sends none while ``state.valid`` is false);
 * ``Plan`` -> ``nav_msgs/Path`` (one ``PoseStamped`` per horizon row X, Y, phi, all stamped
   with the plan's stamp);
 * ``DriveCmd`` -> ``ackermann_msgs/AckermannDriveStamped`` (``drive.speed``,
@@ -65,6 +69,8 @@ MIN_SPEED_FOR_STEERING_MPS = 0.1
 MAX_STEERING_RAD = 1.0
 #: Rows / columns (x, y, yaw) of a ROS 6x6 pose covariance [x, y, z, roll, pitch, yaw].
 COV_XY_YAW = (0, 1, 5)
+#: Smallest norm of an inbound quaternion that is normalised and read (below: dropped).
+MIN_QUATERNION_NORM = 1e-3
 _NS = 1_000_000_000
 
 
@@ -74,7 +80,9 @@ class CdrError(ValueError):
     Attributes:
         reason: ``not_cdr`` (no CDR encapsulation header), ``size_mismatch`` (decodes with
             bytes left over: another type, or garbage after a message), ``bad_cdr``
-            (truncated or garbage inside), ``bad_stamp`` (sec < 0 or nanosec >= 1e9).
+            (truncated or garbage inside), ``bad_stamp`` (sec < 0 or nanosec >= 1e9),
+            ``stale_stamp`` / ``future_stamp`` (far from the arrival time),
+            ``bad_quaternion`` (an orientation without a heading).
     """
 
     def __init__(self, reason: str, detail: str) -> None:
@@ -132,8 +140,42 @@ def stamp_from_s(typestore: Any, t_s: float) -> Any:
 
 
 def yaw_of(q: Any) -> float:
-    """Heading [rad] (about z) of a ``geometry_msgs/Quaternion``."""
+    """Heading [rad] (about z) of a unit ``geometry_msgs/Quaternion``."""
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def checked_yaw(q: Any) -> float:
+    """Heading [rad] of an inbound orientation, normalised first (``yaw_of`` assumes a unit
+    quaternion; a ROS source may send one slightly off).
+
+    Raises:
+        CdrError: ``bad_quaternion`` for a norm below ``MIN_QUATERNION_NORM`` (the all-zero
+            "no orientation" quaternion) or not finite: no heading can be read from it.
+    """
+    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if not math.isfinite(norm) or norm < MIN_QUATERNION_NORM:
+        raise CdrError("bad_quaternion", f"(x, y, z, w) = ({x}, {y}, {z}, {w}), norm {norm:.3g}")
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def check_stamp(stamp_s: float, now_s: float, max_age_s: float, max_ahead_s: float) -> None:
+    """Refuse a header stamp far from the gateway's clock (1970, another clock, +1 h).
+
+    Args:
+        stamp_s: the header stamp [s since the Unix epoch].
+        now_s: the gateway's wall clock at arrival [s].
+        max_age_s: the oldest accepted, ``now_s - stamp_s`` [s].
+        max_ahead_s: the furthest ahead accepted, ``stamp_s - now_s`` [s].
+
+    Raises:
+        CdrError: ``stale_stamp`` or ``future_stamp``.
+    """
+    if now_s - stamp_s > max_age_s:
+        raise CdrError("stale_stamp", f"stamp {stamp_s:.3f} is {now_s - stamp_s:.3f} s old")
+    if stamp_s - now_s > max_ahead_s:
+        raise CdrError("future_stamp", f"stamp {stamp_s:.3f} is {stamp_s - now_s:.3f} s ahead")
 
 
 def quaternion_of(typestore: Any, yaw_rad: float) -> Any:
@@ -168,6 +210,8 @@ def to_native(
     *,
     wheelbase_m: float,
     receive_s: float | None = None,
+    max_age_s: float = math.inf,
+    max_ahead_s: float = math.inf,
 ) -> Message:
     """The record an inbound ROS message becomes on ``topic.native``.
 
@@ -175,19 +219,30 @@ def to_native(
         msg: the deserialized rosbags object of ``topic.type``.
         topic: the topic entry (type, native key, stamp source).
         wheelbase_m: the car's wheelbase [m] (Odometry -> steering).
-        receive_s: the arrival time [s] (wall clock), used with ``stamp = "receive"``.
+        receive_s: the arrival time [s] (wall clock): the stamp with ``stamp = "receive"``;
+            with ``stamp = "header"`` the clock the header stamp is checked against.
+        max_age_s, max_ahead_s: how far [s] a header stamp may lie before / after
+            ``receive_s`` (``check_stamp``).
 
     Raises:
-        CdrError: a bad header stamp. MessageError: a value the contract rejects.
+        CdrError: a bad header stamp (``bad_stamp``, ``stale_stamp``, ``future_stamp``), a
+            pose's orientation without a heading (``bad_quaternion``). MessageError: a value
+            the contract rejects.
     """
     stamp_s = stamp_to_s(msg.header.stamp)
-    if topic.stamp == "receive" and receive_s is not None:
-        stamp_s = receive_s
+    if receive_s is not None:
+        if topic.stamp == "receive":
+            stamp_s = receive_s
+        else:
+            check_stamp(stamp_s, receive_s, max_age_s, max_ahead_s)
     t, native = topic.type, topic.native
     if t == "geometry_msgs/msg/PoseStamped":
         p = msg.pose
         return Pose(
-            stamp_s=stamp_s, x_m=p.position.x, y_m=p.position.y, yaw_rad=yaw_of(p.orientation)
+            stamp_s=stamp_s,
+            x_m=p.position.x,
+            y_m=p.position.y,
+            yaw_rad=checked_yaw(p.orientation),
         )
     if t == "geometry_msgs/msg/PoseWithCovarianceStamped" or (
         t == "nav_msgs/msg/Odometry" and native == "vehicle/pose"
@@ -198,7 +253,7 @@ def to_native(
             stamp_s=stamp_s,
             x_m=p.position.x,
             y_m=p.position.y,
-            yaw_rad=yaw_of(p.orientation),
+            yaw_rad=checked_yaw(p.orientation),
             cov=pose_cov(pc.covariance),
         )
     if t == "nav_msgs/msg/Odometry":

@@ -65,3 +65,31 @@ class RawPublisher:
             self._pub.undeclare()
         except Exception:
             pass
+
+
+class RawToken:
+    """A liveliness token on an arbitrary key (rmw_zenoh's graph; it lives until ``close``
+    or the session closes)."""
+
+    def __init__(self, session: Any, key: str) -> None:
+        """Declare the token `key` on `session`."""
+        self.key = key
+        self._token = session.liveliness().declare_token(key)
+
+    def close(self) -> None:
+        """Undeclare (idempotent; a closed session is fine)."""
+        try:
+            self._token.undeclare()
+        except Exception:
+            pass
+
+
+def session_zid(session: Any) -> str:
+    """The Zenoh session id of `session` as hex (``session.info.zid()``); a random one for a
+    session that has none (a test's fake)."""
+    try:
+        return str(session.info.zid())
+    except Exception:
+        import os
+
+        return os.urandom(16).hex()

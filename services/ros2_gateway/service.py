@@ -8,12 +8,18 @@ it carries every ``[[ros2.topics]]`` entry one way:
   are decoded with rosbags, converted (``convert.to_native``) and published on the native key
   (``vehicle/pose``, ``vehicle/odom``, ``vehicle/imu``, ``vehicle/scan``), stamped with
   ``header.stamp``. A payload that is not CDR, is truncated, is of another type (bytes left
-  over), has a bad stamp or values the contract rejects is dropped and counted per (ROS
-  key, reason) in ``bus.drops``; the service's ``DropReporter`` says so on ``events/log``.
+  over), has a bad stamp (negative, older than ``[ros2] max_stamp_age_s`` or further ahead
+  than ``max_stamp_ahead_s`` of the gateway's clock), a pose without a heading (a zero
+  quaternion) or values the contract rejects is dropped and counted per (ROS key, reason)
+  in ``bus.drops``; the service's ``DropReporter`` says so on ``events/log``.
 * outbound (``direction = "out"``): ``state``, ``planner/plan`` and ``cmd/drive`` records
   become ``nav_msgs/Odometry``, ``nav_msgs/Path`` and
   ``ackermann_msgs/AckermannDriveStamped`` in CDR on the topic's key (with rmw_zenoh's
-  attachment under that scheme), so RViz, Foxglove and rosbag see the race.
+  attachment under that scheme), so RViz, Foxglove and rosbag see the race. A ``state``
+  with ``valid = false`` is not sent (counted: ``skipped_invalid``).
+* under ``rmw_zenoh`` the gateway is a ROS node: it declares rmw_zenoh's liveliness tokens
+  (``liveliness``: the node, one publisher per outbound and one subscription per inbound
+  topic), so ``ros2 topic list`` and rviz2 find the topics (``graph_tokens``).
 
 Threads: Zenoh's callback threads only enqueue (inbound payloads into a bounded queue that
 drops the oldest, native records into their subscriptions' queues); the main thread
@@ -41,8 +47,23 @@ from services.ros2_gateway.convert import (
     to_native,
     to_ros,
 )
-from services.ros2_gateway.naming import GID_LEN, Attachment, uses_attachment, zenoh_key
-from services.ros2_gateway.raw import RawPublisher, RawSubscriber
+from services.ros2_gateway.liveliness import (
+    PUBLISHER,
+    SUBSCRIPTION,
+    NodeId,
+    endpoint_token,
+    full_topic_name,
+    node_token,
+)
+from services.ros2_gateway.naming import (
+    GID_LEN,
+    Attachment,
+    dds_type_name,
+    type_hash,
+    uses_attachment,
+    zenoh_key,
+)
+from services.ros2_gateway.raw import RawPublisher, RawSubscriber, RawToken, session_zid
 from services.ros2_gateway.typestore import make_typestore
 from shared.bus import Bus, DropOldestQueue, Subscription, TypedPublisher
 from shared.car import CAR
@@ -91,6 +112,7 @@ class _Outbound:
     gid: bytes = field(default_factory=lambda: os.urandom(GID_LEN))
     seq: int = 0
     published: int = 0
+    skipped_invalid: int = 0
 
 
 class Ros2GatewayService(Service):
@@ -161,6 +183,35 @@ class Ros2GatewayService(Service):
                         uses_attachment(topic, settings),
                     )
                 )
+        self.tokens: list[RawToken] = [RawToken(self.session, k) for k in self.graph_tokens()]
+
+    def graph_tokens(self) -> list[str]:
+        """rmw_zenoh's liveliness tokens of the gateway (``liveliness``): its node, then one
+        publisher (outbound) or subscription (inbound) per topic of the ``rmw_zenoh`` scheme
+        without an explicit ``key``; none when there is no such topic."""
+        s = self.settings
+        ros = [
+            (i, t)
+            for i, t in enumerate(s.topics)
+            if (t.scheme or s.scheme) == "rmw_zenoh" and t.key is None
+        ]
+        if not ros:
+            return []
+        node = NodeId(s.domain_id, session_zid(self.session), s.node_name, s.namespace)
+        tokens = [node_token(node)]
+        for i, t in ros:
+            kind = PUBLISHER if t.direction == "out" else SUBSCRIPTION
+            tokens.append(
+                endpoint_token(
+                    node,
+                    node.nid + 1 + i,
+                    kind,
+                    full_topic_name(t.topic),
+                    dds_type_name(t.type),
+                    type_hash(t.type, s.distro, self.ts),
+                )
+            )
+        return tokens
 
     @classmethod
     def body(cls, cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -> int:
@@ -191,7 +242,14 @@ class Ros2GatewayService(Service):
         route.received += 1
         try:
             ros = decode_cdr(self.ts, payload, route.topic.type)
-            record = to_native(ros, route.topic, wheelbase_m=self.wheelbase_m, receive_s=receive_s)
+            record = to_native(
+                ros,
+                route.topic,
+                wheelbase_m=self.wheelbase_m,
+                receive_s=receive_s,
+                max_age_s=self.settings.max_stamp_age_s,
+                max_ahead_s=self.settings.max_stamp_ahead_s,
+            )
         except CdrError as exc:
             self.bus.drops.record(route.key, exc.reason, exc.detail)
             return False
@@ -210,6 +268,9 @@ class Ros2GatewayService(Service):
         n = 0
         for route in self.outbound:
             for record in route.sub.drain():
+                if isinstance(record, State) and not record.valid:
+                    route.skipped_invalid += 1  # the bridge has lost the car: no pose to show
+                    continue
                 with self.bus.faults.guard(route.key):
                     payload = encode_cdr(
                         self.ts, to_ros(self.ts, record, route.topic), route.topic.type
@@ -258,6 +319,8 @@ class Ros2GatewayService(Service):
             out[f"in.{r.key}.published"] = r.published
         for o in self.outbound:
             out[f"out.{o.key}.published"] = o.published
+            if o.topic.native == "state":
+                out[f"out.{o.key}.skipped_invalid"] = o.skipped_invalid
         out["inbox_dropped"] = self.inbox.dropped
         out["bus_drops"] = self.bus.drops.total
         out["own_faults"] = self.bus.faults.total

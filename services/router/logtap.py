@@ -2,9 +2,11 @@
 
 Zenoh's Rust log (``shared.bus.enable_zenoh_log``) is written to file descriptor 1. The tap
 replaces fd 1 with a pipe; a thread reads it, hands every access-control line to a
-``DenialParser`` (those lines are not passed on: one per routed message) and writes every
-other line to the original stdout. ``close`` puts the original stdout back. The pipe is
-enlarged to 1 MiB so a slow reader does not stall Zenoh's threads at once.
+``DenialParser`` (those lines are not passed on: one per routed message), hands the TLS
+link's accept lines (one per connection, the certificate's common name) to it too, and writes
+every other line, those included, to the original stdout. ``close`` puts the original
+stdout back. The pipe is enlarged to 1 MiB so a slow reader does not stall Zenoh's threads
+at once.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import logging
 import os
 import threading
 
-from services.router.denials import ACL_TARGET, DenialCounter, DenialParser
+from services.router.denials import ACL_TARGET, LINK_TARGET, DenialCounter, DenialParser
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +58,13 @@ class StdoutTap:
             passed = []
             for raw in lines:
                 text = raw.decode("utf-8", "replace")
-                if ACL_TARGET in text:
+                if LINK_TARGET in text:  # one line per accepted TLS link: read and passed on
+                    try:
+                        self.parser.feed(text)
+                    except Exception:
+                        self.errors += 1
+                    passed.append(raw + b"\n")
+                elif ACL_TARGET in text:
                     try:
                         denial = self.parser.feed(text)
                     except Exception:  # never lose the tap to one odd line

@@ -124,7 +124,7 @@ class Router(Service):
 
         if os.environ.get("RUST_LOG"):
             print(f"router: RUST_LOG is set: denials are counted only if it has "
-                  f"{ACL_LOG_DIRECTIVES.split(',')[1]}", flush=True)
+                  f"{','.join(ACL_LOG_DIRECTIVES.split(',')[1:])}", flush=True)
         tap = StdoutTap()
         try:
             enable_zenoh_log(ACL_LOG_DIRECTIVES)

@@ -1,8 +1,12 @@
 """Settings of the Hokuyo lidar driver (``[lidar_driver]``): where the sensor is, what to ask
 for, how its beams sit in the car frame, and the timeouts that keep the driver alive.
 
-``port`` is a serial device (the USB UTM-30LX: ``/dev/ttyACM0``, baud rate ignored by USB
-ACM) or ``tcp://HOST:PORT`` for the Ethernet models (UST-10LX, UTM-30LX-EW: port 10940).
+``port`` is a serial device (the USB UTM-30LX, baud rate ignored by USB ACM) or
+``tcp://HOST:PORT`` for the Ethernet models (UST-10LX, UTM-30LX-EW: port 10940). The default
+``/dev/sensors/hokuyo`` is a stable name made by a udev rule (the README's "The real car" has
+it: the Hokuyo's USB id 15d1:0000), distinct from the VESC's ``/dev/sensors/vesc``;
+``/dev/serial/by-id/usb-Hokuyo_...`` works as well, a bare ``/dev/ttyACMn`` may swap with the
+VESC's between boots. The user needs the ``dialout`` group.
 """
 
 from __future__ import annotations
@@ -21,7 +25,12 @@ class LidarDriverSettings(Section):
     """The lidar driver's settings (units in the names)."""
 
     port: str = Field(
-        "/dev/ttyACM0", min_length=1, description="serial device or tcp://host:port"
+        "/dev/sensors/hokuyo",
+        min_length=1,
+        description=(
+            "serial device (the udev link /dev/sensors/hokuyo, /dev/serial/by-id/...) or "
+            "tcp://host:port"
+        ),
     )
     baudrate: int = Field(115200, gt=0, le=4_000_000, description="serial baud rate [bit/s]")
     intensity: bool = Field(False, description="ask for intensities (ME instead of MD)")

@@ -125,6 +125,17 @@ class RacestackConfig(Section):
             object.__setattr__(self, "simulator", resolved)  # frozen: set once, here
         return self
 
+    @model_validator(mode="after")
+    def _distinct_serial_ports(self) -> RacestackConfig:
+        """``[vesc] port`` and ``[lidar_driver] port`` name two devices: one path for both
+        would have one driver talk SCIP to the VESC or VESC frames to the lidar."""
+        if self.vesc.port == self.lidar_driver.port:
+            raise ValueError(
+                f"[vesc] port and [lidar_driver] port are both {self.vesc.port!r}: each "
+                "device has its own (e.g. /dev/sensors/vesc and /dev/sensors/hokuyo)"
+            )
+        return self
+
     @property
     def simulates_another_car(self) -> bool:
         """True when the simulator races another car than the planners believe (a

@@ -27,20 +27,40 @@ native key of the contract (``native``)::
          planner/plan -> nav_msgs/msg/Path
          cmd/drive    -> ackermann_msgs/msg/AckermannDriveStamped
 
+The three default outbound topics (``default_topics``: ``/odom``, ``/plan``, ``/drive``) stay
+beside the configured ones: an entry with a default's ROS name (without the leading ``/``)
+or Zenoh key replaces it, and ``defaults`` lists the ones kept (``[]``: none). After loading,
+``topics`` holds every topic, the kept defaults after the configured ones. An outbound entry
+without ``frame_id`` takes its native's (``DEFAULT_FRAME``: ``state`` and ``planner/plan`` in
+``map``, ``cmd/drive`` in ``base_link``).
+
 Stamps: ``header.stamp`` (sec, nanosec since the Unix epoch) is the stack's ``stamp_s`` (wall
 clock) and back; ``stamp = "receive"`` on an inbound topic uses the gateway's clock at
-arrival instead (for sources whose stamps are zero or on another clock).
+arrival instead (for sources whose stamps are zero or on another clock). With ``header``,
+a stamp older than ``max_stamp_age_s`` or further ahead than ``max_stamp_ahead_s`` at arrival
+is dropped. Under ``rmw_zenoh`` the gateway announces itself as the ROS node ``node_name`` in
+``namespace`` (rmw_zenoh's liveliness tokens).
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
 from shared.config.base import Section
 
-__all__ = ["INBOUND", "OUTBOUND", "Ros2Settings", "Ros2Topic"]
+__all__ = [
+    "DEFAULT_FRAME",
+    "DEFAULT_TOPIC_NAMES",
+    "INBOUND",
+    "OUTBOUND",
+    "Ros2Settings",
+    "Ros2Topic",
+    "default_topics",
+]
 
 Scheme = Literal["bridge_ros2dds", "rmw_zenoh"]
 RosType = Literal[
@@ -76,6 +96,15 @@ OUTBOUND: frozenset[tuple[str, str]] = frozenset(
     }
 )
 
+#: ``header.frame_id`` of an outbound topic without one, by native key: the pose and the
+#: plan are in the map frame (Odometry's child frame is ``child_frame_id``, base_link); a
+#: drive command is the car's own (base_link, as the F1TENTH VESC stack expects).
+DEFAULT_FRAME: Mapping[str, str] = MappingProxyType(
+    {"state": "map", "planner/plan": "map", "cmd/drive": "base_link"}
+)
+#: The default outbound topics (``[ros2] defaults`` names which of them are kept).
+DEFAULT_TOPIC_NAMES: tuple[str, ...] = ("/odom", "/plan", "/drive")
+
 _ROS_NAME = r"^/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$"
 _FRAME = r"^[A-Za-z0-9_/.-]{0,128}$"
 
@@ -96,7 +125,12 @@ class Ros2Topic(Section):
         description="explicit Zenoh key (replaces the scheme's; inbound may use * and **)",
     )
     frame_id: str = Field(
-        "map", pattern=_FRAME, description="outbound header.frame_id (Odometry, Path: map)"
+        "map",
+        pattern=_FRAME,
+        description=(
+            "outbound header.frame_id (default per native: state and planner/plan map, "
+            "cmd/drive base_link)"
+        ),
     )
     child_frame_id: str = Field(
         "base_link", pattern=_FRAME, description="outbound Odometry child_frame_id"
@@ -104,6 +138,16 @@ class Ros2Topic(Section):
     stamp: Literal["header", "receive"] = Field(
         "header", description="inbound stamp: header.stamp or the gateway's clock at arrival"
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_frame(cls, data: Any) -> Any:
+        """An outbound entry without ``frame_id`` gets its native's (``DEFAULT_FRAME``)."""
+        if isinstance(data, dict) and "frame_id" not in data:
+            frame = DEFAULT_FRAME.get(str(data.get("native")))
+            if frame is not None:
+                data = {**data, "frame_id": frame}
+        return data
 
     @model_validator(mode="after")
     def _check_pair(self) -> Ros2Topic:
@@ -119,7 +163,10 @@ class Ros2Topic(Section):
         return self
 
 
-def _default_topics() -> tuple[Ros2Topic, ...]:
+def default_topics() -> tuple[Ros2Topic, ...]:
+    """The three default outbound topics: ``state`` on ``/odom`` (nav_msgs/Odometry, frame
+    map, child base_link), ``planner/plan`` on ``/plan`` (nav_msgs/Path, map),
+    ``cmd/drive`` on ``/drive`` (ackermann_msgs/AckermannDriveStamped, base_link)."""
     return (
         Ros2Topic(topic="/odom", type="nav_msgs/msg/Odometry", direction="out", native="state"),
         Ros2Topic(topic="/plan", type="nav_msgs/msg/Path", direction="out", native="planner/plan"),
@@ -128,7 +175,6 @@ def _default_topics() -> tuple[Ros2Topic, ...]:
             type="ackermann_msgs/msg/AckermannDriveStamped",
             direction="out",
             native="cmd/drive",
-            frame_id="base_link",
         ),
     )
 
@@ -142,12 +188,44 @@ class Ros2Settings(Section):
     )
     domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID (rmw_zenoh keys)")
     topics: tuple[Ros2Topic, ...] = Field(
-        default_factory=_default_topics,
+        (),
         max_length=64,
-        description="the topics crossing (default: /odom, /plan, /drive out)",
+        description=(
+            "the topics crossing besides the kept defaults (an entry with a default's ROS "
+            "name or key replaces it); after loading: every topic, defaults included"
+        ),
+    )
+    defaults: tuple[Literal["/odom", "/plan", "/drive"], ...] = Field(
+        DEFAULT_TOPIC_NAMES,
+        description="the default outbound topics kept (/odom, /plan, /drive; [] for none)",
     )
     queue_size: int = Field(
         256, ge=1, le=100_000, description="inbound samples waiting for the gateway's loop"
+    )
+    max_stamp_age_s: float = Field(
+        5.0,
+        gt=0.0,
+        le=86_400.0,
+        allow_inf_nan=False,
+        description="inbound header stamps older than this at arrival are dropped [s]",
+    )
+    max_stamp_ahead_s: float = Field(
+        0.5,
+        gt=0.0,
+        le=86_400.0,
+        allow_inf_nan=False,
+        description="inbound header stamps further ahead of the gateway's clock are dropped [s]",
+    )
+    node_name: str = Field(
+        "racestack_gateway",
+        pattern=r"^[A-Za-z][A-Za-z0-9_]{0,63}$",
+        description="the ROS node name the gateway announces under rmw_zenoh",
+    )
+    namespace: str = Field(
+        "/",
+        pattern=r"^/([A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*)?$",
+        max_length=200,
+        description="the ROS namespace of that node (rmw_zenoh liveliness tokens)",
     )
     event_interval_s: float = Field(
         2.0,
@@ -156,6 +234,26 @@ class Ros2Settings(Section):
         allow_inf_nan=False,
         description="shortest interval between two events/log records of one kind [s]",
     )
+
+    @model_validator(mode="after")
+    def _merge_defaults(self) -> Ros2Settings:
+        """``topics`` = the configured entries, then each kept default that no entry replaces
+        (same ROS name without its leading ``/``, or the same Zenoh key)."""
+        from shared.ros2_keys import zenoh_key
+
+        user = self.topics
+        names = {t.topic.lstrip("/") for t in user}
+        keys = {zenoh_key(t, self) for t in user}
+        kept = tuple(
+            d
+            for d in default_topics()
+            if d.topic in self.defaults
+            and d.topic.lstrip("/") not in names
+            and zenoh_key(d, self) not in keys
+        )
+        if kept:  # frozen: set once, here, before anything reads it
+            object.__setattr__(self, "topics", user + kept)
+        return self
 
     @model_validator(mode="after")
     def _check_unique(self) -> Ros2Settings:

@@ -16,6 +16,12 @@ The VESC's IMU (``COMM_GET_IMU_DATA``, ``shared.vesc.imu``) is polled at ``poll_
 ``imu_pitch_deg``, ``imu_yaw_deg`` (``R = Rz(yaw) Ry(pitch) Rx(roll)``, ``v_car = R v_board``)
 or a full ``imu_rotation`` (3x3, rows of ``R``; then the angles must stay 0). These act on top
 of the rotation set in the VESC Tool (the firmware applies that one before it answers).
+
+``port`` defaults to ``/dev/sensors/vesc``, a stable name made by a udev rule (the README's
+"The real car" has the rule: the VESC's USB id 0483:5740), distinct from the lidar's
+``/dev/sensors/hokuyo``: ``/dev/ttyACM0`` and ``/dev/ttyACM1`` are handed out in the order the
+devices enumerate, so the two would swap between boots. ``/dev/serial/by-id/usb-...`` (made
+by udev with no rule of ours) works as well. The user needs the ``dialout`` group.
 """
 
 from __future__ import annotations
@@ -35,7 +41,14 @@ __all__ = ["VescSettings"]
 class VescSettings(Section):
     """The VESC driver's settings (units in the names)."""
 
-    port: str = Field("/dev/ttyACM0", min_length=1, description="serial device path")
+    port: str = Field(
+        "/dev/sensors/vesc",
+        min_length=1,
+        description=(
+            "serial device path: the udev link /dev/sensors/vesc (README, 'The real car'), "
+            "or /dev/serial/by-id/usb-...; never a bare /dev/ttyACMn, whose number changes"
+        ),
+    )
     baudrate: int = Field(115200, gt=0, le=4_000_000, description="serial baud rate [bit/s]")
 
     speed_to_erpm_gain: float = Field(

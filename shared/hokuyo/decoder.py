@@ -62,7 +62,8 @@ class DecoderCounters:
         responses: valid responses decoded.
         bytes_in: bytes fed in total.
         garbage_bytes: bytes dropped: noise, cut-short responses, rejected responses.
-        no_echo: pieces (up to an empty line) without a valid echo and status: noise.
+        no_echo: noise pieces: pieces (up to an empty line) without a valid echo and status,
+            and runs of junk (lines, bytes) in front of a response's echo.
         truncated: responses cut short by the next one (a valid echo and status earlier
             in the same piece).
         checksum_errors: responses dropped because a line's checksum was wrong.
@@ -186,6 +187,8 @@ class ResponseDecoder:
         i, start, m, status = found
         c.truncated += earlier
         c.garbage_bytes += start
+        if start and not earlier:  # junk lines or bytes before the echo: one noise piece
+            c.no_echo += 1
         code = Code(m["code"].decode("ascii"))
         info = code in INFO_CODES
         body: list[bytes] = []

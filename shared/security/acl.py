@@ -23,7 +23,11 @@ jazzy's type hash of an outbound rmw_zenoh key):
 | every inbound topic's key (ROS -> stack, e.g. ``pf/pose``) | ros2 (the ROS side) |
 
 Every identity may declare subscribers on them, and the hub forwards puts and subscriber
-declarations on them (egress). A ROS key that would reach into ``racestack/`` is refused
+declarations on them (egress). When a topic uses the ``rmw_zenoh`` scheme, rmw_zenoh's graph
+``@ros2_lv/<domain>/**`` gets rules too: everyone may watch it and ask for it (liveliness
+subscribers, queries on all of ``@ros2_lv/**``; forwarded with the tokens and replies), only
+ros2_gateway and ros2 may declare tokens in the domain (the gateway's node and endpoints,
+the ROS side's nodes). A ROS key that would reach into ``racestack/`` is refused
 (``ValueError``): the ROS side must never get put rights on the stack's own keys.
 
 Besides: every identity may declare subscribers and liveliness subscribers and make liveliness
@@ -111,6 +115,34 @@ ROS2_WRITERS: Mapping[str, tuple[str, ...]] = MappingProxyType(
 ROS2_LISTEN_MESSAGES: tuple[str, ...] = ("declare_subscriber",)
 #: What the hub may forward to any identity (egress) on the ROS keys.
 ROS2_FORWARD_MESSAGES: tuple[str, ...] = ("put", "declare_subscriber")
+#: Who may declare rmw_zenoh graph tokens (``@ros2_lv/<domain>/**``: the gateway's node
+#: and endpoints, the ROS side's nodes).
+ROS2_GRAPH_WRITERS: tuple[str, ...] = ("ros2_gateway", ROS2_IDENTITY)
+#: What every identity may do on rmw_zenoh's graph (ingress): watch and ask for it.
+ROS2_GRAPH_LISTEN_MESSAGES: tuple[str, ...] = ("declare_liveliness_subscriber", "liveliness_query")
+#: What the hub may forward on it (egress): the tokens, the watchers, the queries, replies.
+ROS2_GRAPH_FORWARD_MESSAGES: tuple[str, ...] = (
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+    "reply",
+)
+
+
+#: Every domain's graph: watching and asking (read only) is allowed on all of it, so that a
+#: query of ``@ros2_lv/**`` (not only rmw_zenoh's own ``@ros2_lv/<domain>/**``) is not
+#: denied; declaring tokens only in the configured domain.
+ROS2_GRAPH_ALL = "@ros2_lv/**"
+
+
+def ros2_graph_key(ros2: Ros2Settings) -> str | None:
+    """The key expression of rmw_zenoh's liveliness tokens for `ros2`'s domain, or None when
+    no topic uses the ``rmw_zenoh`` scheme (no graph to allow)."""
+    if not any((t.scheme or ros2.scheme) == "rmw_zenoh" for t in ros2.topics):
+        return None
+    return f"@ros2_lv/{ros2.domain_id}/**"
+
+
 #: The first chunk of every key of the stack (a ROS key must stay clear of it).
 STACK_ROOT = "racestack"
 
@@ -251,6 +283,34 @@ def access_control(
             )
             for name in ROS2_WRITERS[direction]:
                 ros2_put.setdefault(name, []).append(rule_id)
+        graph = ros2_graph_key(ros2)
+        if graph is not None:
+            rules += [
+                {
+                    "id": "ros2_graph_listen",
+                    "messages": list(ROS2_GRAPH_LISTEN_MESSAGES),
+                    "flows": ["ingress"],
+                    "permission": "allow",
+                    "key_exprs": [ROS2_GRAPH_ALL],
+                },
+                {
+                    "id": "ros2_graph_forward",
+                    "messages": list(ROS2_GRAPH_FORWARD_MESSAGES),
+                    "flows": ["egress"],
+                    "permission": "allow",
+                    "key_exprs": [ROS2_GRAPH_ALL],
+                },
+                {
+                    "id": "ros2_graph_token",
+                    "messages": ["liveliness_token"],
+                    "flows": ["ingress"],
+                    "permission": "allow",
+                    "key_exprs": [graph],
+                },
+            ]
+            shared_ros2 += ["ros2_graph_listen", "ros2_graph_forward"]
+            for name in ROS2_GRAPH_WRITERS:
+                ros2_put.setdefault(name, []).append("ros2_graph_token")
     policies: list[dict[str, Any]] = []
     for name in identities:
         rules.append(

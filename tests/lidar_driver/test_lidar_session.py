@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.lidar_driver.session import LidarSession, Note, Phase, Reconnect, ScanReady
+from services.lidar_driver.session import (
+    LidarSession,
+    Note,
+    Phase,
+    Reconnect,
+    ScanReady,
+    stream_rate_hz,
+)
 from shared.config.lidar import LidarDriverSettings
 from shared.hokuyo.fake import FakeHokuyoModel
 
@@ -133,3 +140,23 @@ def test_a_silent_sensor_asks_for_a_reconnect_and_a_mute_one_fails_the_handshake
     loop.model.silent = False
     loop.tx = loop.session.start(loop.t, WALL0 + loop.t)
     assert scans_of(loop.run(0.4))
+
+
+def test_the_stream_rate_follows_the_skip_count() -> None:
+    """SCIP 2.0's skip count leaves scans out: 2400 rpm is 40 Hz, skip 1 every other scan
+    (20 Hz), skip 3 one in four (10 Hz); the info line says so."""
+    assert [stream_rate_hz(2400.0, k) for k in (0, 1, 3)] == [40.0, 20.0, 10.0]
+    loop = Loop(LidarDriverSettings(skip=1))
+    notes = [o.text for o in loop.run(0.3) if isinstance(o, Note)]
+    assert any("20.0 Hz" in t for t in notes), notes
+
+
+def test_junk_lines_in_front_of_a_scan_are_a_noise_piece() -> None:
+    loop = Loop(LidarDriverSettings())
+    loop.run(0.2)
+    before = len(scans_of(loop.out))
+    loop.model.garbage = b"junk line\nmore junk\n"  # no empty line: glued to the next scan
+    loop.run(0.2)
+    d = loop.session.decoder.counters
+    assert d.no_echo == 1 and d.garbage_bytes == len(b"junk line\nmore junk\n")
+    assert len(scans_of(loop.out)) > before + 3

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import re
 import time
 
 import numpy as np
@@ -111,4 +112,36 @@ def test_the_shell_publishes_scans_and_reports_faults_and_a_missing_port(tmp_pat
         assert run_until(svc, lambda: any("1 bad checksums" in t for t in logs()))
         d = svc.diagnostics()
         assert d["decoder.checksum_errors"] == 1 and d["service.published"] >= 5
+        svc.close()
+
+
+@pytest.mark.skipif(not pty_available(), reason="needs pseudo-terminals (os.openpty)")
+def test_pure_noise_on_the_line_is_counted_and_reported_on_events_log(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Random bytes (no empty line) and junk lines between scans: the scans go on, every run
+    of junk is one noise piece, and the count is said on events/log (rate limited)."""
+    rng = np.random.default_rng(11)
+    scans = [rng.integers(20, 25000, 1081) for _ in range(3)]
+    noise = bytes(b for b in rng.integers(0, 256, 300, dtype=np.uint8).tobytes() if b != 0x0A)
+    with FakeHokuyo(scans, link_dir=tmp_path) as fake:
+        bus = FakeBus()
+        svc = LidarService(
+            LidarDriverSettings(port=fake.address, event_interval_s=0.2), bus
+        )
+
+        def logs() -> list[str]:
+            return [e.text for e in bus.sent(bus.keys.events_log, LogEvent)]
+
+        assert run_until(svc, lambda: len(bus.sent(bus.keys.scan, Scan)) >= 3)
+        published = len(bus.sent(bus.keys.scan, Scan))
+        for junk in (noise, b"junk line\n", b"#$%&\nanother one\n", noise):
+            fake.set(garbage=junk)
+            assert run_until(svc, lambda j=junk: fake.model.garbage != j)  # sent before a scan
+        assert run_until(svc, lambda: svc.session.decoder.counters.no_echo >= 4)
+        pattern = re.compile(r"(\d+) noise pieces")
+        assert run_until(
+            svc, lambda: any(int(n) >= 4 for t in logs() for n in pattern.findall(t))
+        ), logs()
+        assert len(bus.sent(bus.keys.scan, Scan)) > published + 2  # the stream went on
+        reports = [t for t in logs() if "noise pieces" in t]
+        assert len(reports) <= 5, reports  # rate limited: not one line per piece
         svc.close()

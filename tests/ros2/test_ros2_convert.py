@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import struct
+import tomllib
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -350,3 +353,52 @@ def test_settings_defaults_and_validation() -> None:
     assert cfg.ros2.topics[0].topic == "/pf/pose"
     with pytest.raises(ValueError, match="unknown key"):
         config_from_dict({"ros2": {"topcs": []}})
+
+
+def _readme_ros2_example() -> str:
+    """The README's ``[ros2]`` example (the toml block with the inbound /pf/pose), verbatim."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```toml\n(.*?)```", readme, flags=re.S)
+    (block,) = [b for b in blocks if "[[ros2.topics]]" in b and '"/pf/pose"' in b]
+    return block
+
+
+def test_the_readme_inbound_example_keeps_the_outbound_defaults() -> None:
+    cfg = config_from_dict(tomllib.loads(_readme_ros2_example()))
+    got = [(t.topic, t.direction, t.native, t.frame_id) for t in cfg.ros2.topics]
+    assert got == [
+        ("/pf/pose", "in", "vehicle/pose", "map"),
+        ("/odom", "out", "state", "map"),
+        ("/plan", "out", "planner/plan", "map"),
+        ("/drive", "out", "cmd/drive", "base_link"),
+    ]
+
+
+def test_an_entry_replaces_the_default_of_its_name_and_defaults_can_be_disabled() -> None:
+    drive_ns = {"topic": "/drive", "type": "ackermann_msgs/msg/AckermannDriveStamped",
+                "direction": "out", "native": "cmd/drive", "scheme": "rmw_zenoh"}
+    s = Ros2Settings.model_validate({"topics": [drive_ns]})
+    assert [(t.topic, t.scheme) for t in s.topics] == [
+        ("/drive", "rmw_zenoh"), ("/odom", None), ("/plan", None),
+    ]
+    assert s.topics[0].frame_id == "base_link"  # the per-native default frame
+    odom_in = {"topic": "odom", "type": "nav_msgs/msg/Odometry", "direction": "in",
+               "native": "vehicle/odom"}  # same ROS name: replaces the outbound /odom
+    s = Ros2Settings.model_validate({"topics": [odom_in]})
+    assert [(t.topic, t.direction) for t in s.topics] == [
+        ("odom", "in"), ("/plan", "out"), ("/drive", "out"),
+    ]
+    by_key = {"topic": "/car/odom", "key": "plan", "type": "nav_msgs/msg/Odometry",
+              "direction": "out", "native": "state"}  # same key as /plan: replaces it
+    s = Ros2Settings.model_validate({"topics": [by_key]})
+    assert [t.topic for t in s.topics] == ["/car/odom", "/odom", "/drive"]
+    assert [t.topic for t in Ros2Settings(defaults=()).topics] == []
+    assert [t.topic for t in Ros2Settings(defaults=("/plan",)).topics] == ["/plan"]
+    with pytest.raises(ValidationError):
+        Ros2Settings.model_validate({"defaults": ["/scan"]})
+    # a dumped configuration loads back to the same settings (defaults not doubled)
+    s = Ros2Settings.model_validate({"topics": [odom_in]})
+    assert Ros2Settings.model_validate(s.model_dump()) == s
+    # an explicit frame stays; the plan's frame is configurable too
+    s = Ros2Settings.model_validate({"topics": [{**drive_ns, "frame_id": "laser"}]})
+    assert s.topics[0].frame_id == "laser"

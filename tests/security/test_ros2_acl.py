@@ -94,20 +94,21 @@ def test_an_inbound_topic_is_put_by_the_ros_side_only() -> None:
     ros2 = Ros2Settings.model_validate({"topics": [POSE_IN, IMU_IN, PLAN_OUT]})
     imu = "0/sensors/imu/sensor_msgs::msg::dds_::Imu_/*"
     plan = f"0/plan/nav_msgs::msg::dds_::Path_/{HUMBLE_TYPE_HASH}"
-    assert ros2_keys(ros2) == {"in": ("pf/pose", imu), "out": (plan,)}
+    # the default /odom and /drive stay beside the configured /plan
+    assert ros2_keys(ros2) == {"in": ("pf/pose", imu), "out": (plan, "odom", "drive")}
     acl = access_control("car0", ros2=ros2)
     assert put_rights(acl, "pf/pose") == ["ros2"] == put_rights(acl, imu)
     assert put_rights(acl, plan) == ["ros2_gateway"]
     rules, pol = rules_and_policies(acl)
     assert "ros2_put_in" not in pol["telemetry"] and "ros2_put_in" not in pol["ros2_gateway"]
-    assert rules["ros2_listen"]["key_exprs"] == [plan, "pf/pose", imu]
+    assert rules["ros2_listen"]["key_exprs"] == [plan, "odom", "drive", "pf/pose", imu]
     # the gateway subscribes to and publishes on exactly the keys of the rules
     ts = make_typestore("humble")
-    assert [zenoh_key(t, ros2, ts) for t in ros2.topics] == ["pf/pose", imu, plan]
+    assert [zenoh_key(t, ros2, ts) for t in ros2.topics[:3]] == ["pf/pose", imu, plan]
 
 
 def test_jazzy_outbound_hash_is_a_wildcard_in_the_rules_covering_the_gateway_s_key() -> None:
-    ros2 = Ros2Settings.model_validate({"distro": "jazzy", "topics": [PLAN_OUT]})
+    ros2 = Ros2Settings.model_validate({"distro": "jazzy", "topics": [PLAN_OUT], "defaults": []})
     (rule_key,) = ros2_keys(ros2)["out"]
     gw_key = zenoh_key(ros2.topics[0], ros2, make_typestore("jazzy"))
     assert rule_key == "0/plan/nav_msgs::msg::dds_::Path_/*"
@@ -140,3 +141,19 @@ def test_the_router_s_session_carries_the_configured_topics() -> None:
     assert hub.session_plan(listen_default=False, service="planner").access_control is None
     plain = config_from_dict({"ros2": {"topics": [POSE_IN]}})
     assert hub_settings(plain) is plain.bus
+
+
+def test_rmw_zenoh_graph_tokens_only_from_the_gateway_and_the_ros_side() -> None:
+    """With an rmw_zenoh topic, ``@ros2_lv/<domain>/**``: everyone may watch and query it,
+    only ros2_gateway and ros2 declare tokens; without one, no graph rule at all."""
+    ros2 = Ros2Settings.model_validate({"domain_id": 4, "topics": [IMU_IN]})
+    rules, pol = rules_and_policies(access_control("car0", ros2=ros2))
+    assert rules["ros2_graph_token"]["key_exprs"] == ["@ros2_lv/4/**"]
+    assert rules["ros2_graph_token"]["messages"] == ["liveliness_token"]
+    writers = sorted(n for n, ids in pol.items() if "ros2_graph_token" in ids)
+    assert writers == ["ros2", "ros2_gateway"]
+    assert all("ros2_graph_listen" in ids and "ros2_graph_forward" in ids for ids in pol.values())
+    assert "liveliness_token" not in rules["ros2_graph_listen"]["messages"]
+    assert rules["ros2_graph_listen"]["key_exprs"] == ["@ros2_lv/**"]  # watching: any domain
+    plain, _ = rules_and_policies(access_control("car0", ros2=Ros2Settings()))
+    assert not any(r.startswith("ros2_graph") for r in plain)

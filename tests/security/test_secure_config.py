@@ -9,7 +9,13 @@ import pytest
 
 from services.localization_bridge.service import BridgeService
 from services.planner.service import PlannerShell
-from services.router.denials import Denial, DenialParser, growth_text
+from services.router.denials import (
+    CONNECT_DENIED,
+    UNKNOWN_CN,
+    Denial,
+    DenialParser,
+    growth_text,
+)
 from services.router.service import Router
 from services.simulator.service import SimulatorService
 from services.telemetry.service import TelemetryService
@@ -121,3 +127,29 @@ def test_denials_parsed_from_a_real_trace() -> None:
     assert n == 7 and text.startswith("telemetry Put (ingress) racestack/car0/cmd/drive x6")
     assert parser.feed("some other line") is None
     assert parser.feed("zenoh::net::routing::interceptor::access_control: garbage") is None
+
+
+def test_denials_of_an_unknown_common_name_are_counted() -> None:
+    """A trace of zenoh 1.10.2's hub (with ``ACL_LOG_DIRECTIVES``): a certificate of the
+    project's CA with the common name ``stranger`` (no identity) connected, declared a token
+    and put cmd/drive; then telemetry put cmd/drive 5 times. Zenoh gives the stranger no
+    cache-fill lines: its connection and both decisions count, named after the CN the TLS
+    link logged."""
+    parser = DenialParser()
+    found: dict[Denial, int] = {}
+    for line in (TRACE.parent / "acl_trace_unknown_cn_1.10.2.txt").read_text(
+        errors="replace"
+    ).splitlines():
+        d = parser.feed(line)
+        if d is not None:
+            found[d] = found.get(d, 0) + 1
+    who = "stranger" + UNKNOWN_CN
+    assert found == {
+        Denial(who, CONNECT_DENIED, "ingress", "*"): 1,
+        Denial(who, "Liveliness Token", "ingress", "racestack/car0/alive/stranger"): 1,
+        Denial(who, "Put", "ingress", "racestack/car0/cmd/drive"): 1,
+        Denial("telemetry", "Put", "ingress", "racestack/car0/cmd/drive"): 5,
+    }
+    assert parser.strangers == 1
+    n, text = growth_text(found, {})
+    assert n == 8 and "stranger (unknown CN) Connect" in text

@@ -14,8 +14,8 @@ CAR_TOML = Path(__file__).resolve().parents[2] / "config" / "car.toml"
 
 def test_the_car_example_loads_and_says_what_the_car_uses() -> None:
     cfg = load_config(CAR_TOML)
-    assert cfg.vesc.port == "/dev/ttyACM0" and cfg.vesc.poll_imu_rate_hz > 0
-    assert cfg.lidar_driver.port == "/dev/ttyACM1"
+    assert cfg.vesc.port == "/dev/sensors/vesc" and cfg.vesc.poll_imu_rate_hz > 0
+    assert cfg.lidar_driver.port == "/dev/sensors/hokuyo"
     assert cfg.localization.pose_source == "lidar"
     assert cfg.bus.security == "mtls" and cfg.bus.certs_dir == "certs"
     assert cfg.planner.method == "cimpcc"
