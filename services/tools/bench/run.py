@@ -363,9 +363,11 @@ def run_bench(
     # built first: a track that allows no line is an error before anything races
     planners = {}
     for name in methods:
-        what = "line and planner" if METHODS[name].reference != "centreline" else "planner"
-        _stderr(f"building the {what} for {name} on {track.name} (a compiled problem: once "
-                "per structure, then from the cache) ...")
+        spec = METHODS[name]
+        what = "line and planner" if spec.reference != "centreline" else "planner"
+        how = " (its compiled problem: once per structure, then from the cache)" if (
+            spec.kind == "mpc") else ""
+        _stderr(f"building the {what} for {name} on {track.name}{how} ...")
         with Heartbeat(f"building the {what} for {name}"):
             planners[name] = pool.planner(cfg.planner, name, cfg.curvature)
     profile = track_profile(track, cfg.curvature)
