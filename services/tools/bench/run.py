@@ -68,7 +68,7 @@ from shared.evaluation import (
     write_results,
 )
 from shared.outdir import writable_dir_problem
-from shared.service_shell import count_problem, positive_int
+from shared.service_shell import OneLineArgumentParser, count_problem, positive_int
 from shared.track import TRACK_SPEC_HELP, Track, TrackError, load_track
 
 #: The methods ``--methods`` races by default: the paper's two.
@@ -435,7 +435,8 @@ def run_bench(
 
 def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """Arguments of ``racestack bench``."""
-    ap = ap or argparse.ArgumentParser(prog="racestack bench", description=__doc__.splitlines()[0])
+    ap = ap or OneLineArgumentParser(prog="racestack bench",
+                                     description=__doc__.splitlines()[0])
     ap.add_argument("--config", help="TOML configuration file (default: the built-in "
                     "configuration)")
     ap.add_argument(
@@ -502,7 +503,11 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
 
 def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) -> int:
     """Run the bench from the command line; exit code 0 on success, 2 on bad arguments."""
-    args = args or build_parser().parse_args(argv)
+    if args is None:
+        try:  # a usage error (e.g. --laps 0) is the parser's one line and exit code 2
+            args = build_parser().parse_args(argv)
+        except SystemExit as exc:
+            return exc.code if isinstance(exc.code, int) else 2
     try:
         cfg = load_config(args.config)
         methods = parse_methods(args.methods)
