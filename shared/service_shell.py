@@ -63,15 +63,30 @@ def plain_help(doc: str | None) -> str | None:
     return " ".join(para.replace("``", "").split())
 
 
+def _count_text(value: int) -> str | None:
+    return None if value >= 1 else f"must be a whole number >= 1, got {value}"
+
+
 def positive_int(text: str) -> int:
-    """An argparse ``type``: a whole number >= 1 (e.g. a lap count)."""
+    """An argparse ``type``: a whole number >= 1 (e.g. a lap count). Its message is the
+    one of ``count_problem``: ``argument --laps: must be a whole number >= 1, got 0``."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    problem = _count_text(value)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
     return value
+
+
+def count_problem(option: str, value: int) -> str | None:
+    """The one wording of a count option below 1 (``--laps 0``), as argparse says it of a
+    ``positive_int`` option: ``argument --laps: must be a whole number >= 1, got 0``; None
+    when `value` is fine. For callers that pass a parsed value on (``run_up``, the bench's
+    ``main(args=...)``)."""
+    problem = _count_text(value)
+    return None if problem is None else f"argument {option}: {problem}"
 
 
 def hub_endpoints(settings: BusSettings, service: str) -> list[str]:

@@ -252,9 +252,7 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     line ``MinTimeArtefactMissingError`` (a ``TrackError``: exit code 2) names the
     ``racestack mintime`` command, with this configuration, that makes it."""
     track = load_track(cfg.track.source)
-    log.info(
-        "building the %s planner on %s (compiled problem cached)", cfg.planner.method, track.name
-    )
+    log.info("building the %s planner on %s", cfg.planner.method, track.name)
     try:
         planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
     except MinTimeArtefactMissingError as exc:  # made by the tools, never solved here

@@ -60,6 +60,7 @@ from services.simulator.vesc_actuation import VescActuation
 from shared.angles import wrap_angle
 from shared.bus import Bus, LatestSlot
 from shared.config import RacestackConfig
+from shared.evaluation.results import OUT_LAP_START_M
 from shared.keys import (
     DRIVE_CMD,
     EVENTS_LOG,
@@ -94,9 +95,9 @@ from shared.track import Track, load_track, occupancy_for
 DEBUG_PERIOD_S = 2.0
 #: Rate of ``sim/truth`` [Hz].
 TRUTH_RATE_HZ = 50.0
-#: Where the car starts: this far along from the start line [m] (behind it: timing starts
-#: at once and lap 1 is a standing-start lap).
-START_OFFSET_M = -0.3
+#: Where the car starts: this far along from the start line [m]: past it, as in the bench,
+#: so the car drives an out lap before timing starts and lap 1 is a flying lap.
+START_OFFSET_M = OUT_LAP_START_M
 #: A loop iteration later than this behind real time is counted as an overrun [s].
 OVERRUN_S = 0.02
 #: Further behind real time than this [s], the simulation skips ahead instead of catching

@@ -17,14 +17,16 @@ def certs_parser(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
         f"({', '.join(IDENTITIES)}) for [bus] security = \"mtls\"."
     )
     ap.add_argument("--out", required=True, help="the certificates folder ([bus] certs_dir)")
-    ap.add_argument("--force", action="store_true", help="replace certificates already there")
+    ap.add_argument("--force", action="store_true", help="replace certificates already there "
+                    "(default: refuse, one line, when any file exists)")
     ap.add_argument(
         "--host",
         action="append",
         default=[],
         metavar="H",
         help="another DNS name or IP address the hub is reached at (repeatable), e.g. the "
-        "car's address for a laptop; localhost and 127.0.0.1 are always in",
+        "car's address for a laptop; localhost and 127.0.0.1 are always in (default: "
+        "those two only)",
     )
     ap.add_argument("--days", type=int, default=None, help="validity [days] (default 825)")
     return ap

@@ -28,6 +28,8 @@ from shared.service_shell import OneLineArgumentParser, positive_int
 from shared.track import TRACK_SPEC_HELP, TrackError
 
 Handler = Callable[[argparse.Namespace], int]
+#: The help of every ``--config`` option.
+CONFIG_HELP = "TOML configuration file (default: the built-in configuration)"
 #: Services startable with ``racestack run NAME`` (each is ``python -m services.NAME``): the
 #: roster's processes, in its order.
 SERVICES = roster.names()
@@ -63,14 +65,15 @@ def _cmd_up(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
-    from services.tools.launcher import UpOptions, run_up
+    from services.tools.launcher import UpOptions, run_up, up_config
     from shared.service_shell import install_stop_handlers
 
-    cfg = load_config(args.config)
+    cfg, data = up_config(args.config, track=args.track, method=args.method)
     stop = threading.Event()
     install_stop_handlers(stop)
     run_dir = Path(args.run_dir) if args.run_dir else None
-    opts = UpOptions(config_path=args.config, laps=args.laps, run_dir=run_dir)
+    opts = UpOptions(config_path=args.config, laps=args.laps, run_dir=run_dir,
+                     config_data=data, verbose=args.verbose)
     if args.serve is not None:
         opts.telemetry_args += ["--serve", str(args.serve)]
     return run_up(cfg, opts, stop_requested=stop.is_set)
@@ -165,7 +168,8 @@ def _cmd_certs(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     ap = OneLineArgumentParser(prog="racestack", description="CiMPCC racing stack for F1TENTH")
-    ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    ap.add_argument("-v", "--verbose", action="store_true",
+                    help="debug logging (default: info; up: warnings, see up --help)")
     sub = ap.add_subparsers(dest="command", required=True)
 
     for name, help_text in (
@@ -177,13 +181,21 @@ def build_parser() -> argparse.ArgumentParser:
         ("demo", "the main job: same as `up`"),
     ):
         up = sub.add_parser(name, help=help_text)
-        up.add_argument("--config", help="TOML configuration file")
+        up.add_argument("--config", help=CONFIG_HELP)
         up.add_argument(
             "--laps",
             type=positive_int,
             default=3,
-            help="timed laps to race before the table is printed and the stack stops "
-            "(a whole number >= 1; default 3)",
+            help="timed laps to race, after an untimed out lap, before the table is printed "
+            "and the stack stops (a whole number >= 1; default 3)",
+        )
+        up.add_argument(
+            "--track", help=f"{TRACK_SPEC_HELP} (default: the config's [track] source)"
+        )
+        up.add_argument(
+            "--method", choices=planner_methods(),
+            help="the planner's method, one of the registry's (default: the configuration's "
+            "[planner] method)",
         )
         up.add_argument("--run-dir", help="where logs and telemetry go (default runs/<time>)")
         up.add_argument(
@@ -191,7 +203,12 @@ def build_parser() -> argparse.ArgumentParser:
             type=tcp_port,
             metavar="PORT",
             help="also serve live telemetry on 127.0.0.1:PORT for a Rerun viewer "
-            "(the rerun --connect line is printed)",
+            "(the rerun --connect line is printed; default: not served)",
+        )
+        up.add_argument(
+            "-v", "--verbose", action="store_true", dest="up_verbose",
+            help="every log line (debug, with timestamps) on stderr too; default: warnings "
+            "and errors only, the full log in RUN/logs/launcher.log",
         )
         up.set_defaults(handler=_cmd_up)
 
@@ -200,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="run one service alone",
         description="racestack run SERVICE [--config FILE] [service options]",
     )
-    run.add_argument("service", choices=SERVICES)
+    run.add_argument("service", choices=SERVICES, help="the service to run")
     run.add_argument("rest", nargs=argparse.REMAINDER, help="the service's own options")
     run.set_defaults(handler=_cmd_run)
 
@@ -243,14 +260,15 @@ def build_parser() -> argparse.ArgumentParser:
     certs.set_defaults(handler=_cmd_certs)
 
     laps = sub.add_parser("laps", help="planner vs its own kinematic model, lap times")
-    laps.add_argument("--config", help="TOML configuration file")
+    laps.add_argument("--config", help=CONFIG_HELP)
     laps.add_argument("--track", help=f"{TRACK_SPEC_HELP} (default: the config's)")
     laps.add_argument(
         "--method", choices=planner_methods(),
         help="a method of the registry (default: the configuration's [planner] method)",
     )
     laps.add_argument(
-        "--laps", type=positive_int, default=2, help="laps to race (a whole number >= 1)"
+        "--laps", type=positive_int, default=2,
+        help="laps to race (a whole number >= 1; default 2)"
     )
     laps.set_defaults(handler=_cmd_laps)
     _plain(ap)
@@ -266,7 +284,12 @@ def main(argv: list[str] | None = None) -> int:
         args.rest = argv[argv.index("report") + 1 :]
     elif unknown:
         ap.parse_args(argv)  # the one-line error naming them
-    if args.command not in ("run", "report"):
+    if args.command in ("up", "demo"):
+        from services.tools.launcher import console_logging
+
+        args.verbose = args.verbose or args.up_verbose
+        console_logging(args.verbose)
+    elif args.command not in ("run", "report"):
         logging.basicConfig(
             level=logging.DEBUG if args.verbose else logging.INFO,
             format="%(asctime)s %(levelname)s %(name)s: %(message)s",

@@ -211,7 +211,8 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
                     help="which lap: the car's limit (default; the bench's reference), the "
                     "line cimpcc-line contours or the raceline baseline's line (the artefact "
                     "the planner of this configuration reads)")
-    ap.add_argument("--config", help="TOML configuration file (its [vehicle] car)")
+    ap.add_argument("--config", help="TOML configuration file (its [vehicle] car; default: "
+                    "the built-in configuration)")
     ap.add_argument("--track", help=f"{TRACK_SPEC_HELP} (default: the config's)")
     ap.add_argument("--v-max", dest="v_max", metavar="V",
                     help="top speed cap [m/s] (default: [planner.cimpcc] v_up_mps, 4.18)")
@@ -220,12 +221,16 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
                     help="footprint kept this far inside the boundaries [m] (default 0.02)")
     ap.add_argument("--simulated-car", action="store_true",
                     help="with --for limit: the limit of the car the simulator races "
-                    "([simulator.vehicle] when given) instead of [vehicle]")
+                    "([simulator.vehicle] when given) instead of [vehicle] (default: "
+                    "[vehicle], the planners' car)")
     ap.add_argument("--cache", metavar="DIR", help="cache base folder the lap is stored in "
                     "(default $RACESTACK_CACHE, else ~/.cache/racestack)")
     ap.add_argument("--out", help="output folder (default runs/mintime-<time>)")
-    ap.add_argument("--no-cache", action="store_true", help="solve even if a cached lap exists")
-    ap.add_argument("--no-figures", action="store_true")
+    ap.add_argument("--no-cache", action="store_true",
+                    help="solve even if a cached lap exists (default: read the cached one)")
+    ap.add_argument("--no-figures", action="store_true",
+                    help="write mintime.json and raceline.csv only, no PNG figures (default: "
+                    "the figures too; they need matplotlib)")
     return ap
 
 

@@ -26,14 +26,15 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from services.telemetry import SIM_TIME, WALL_TIME, find_segments, read_store
-from shared.config import ConfigError, load_config
-from shared.config.methods import CIMPCC, MPCC
+from shared.config import ConfigError, RacestackConfig, load_config
+from shared.config.methods import METHODS
 from shared.curvature import CurvatureProfile, track_profile
 from shared.evaluation import (
     LapRecord,
     MethodRun,
     Trace,
     format_table,
+    reference_document,
     results_document,
     write_figures,
     write_results,
@@ -41,13 +42,12 @@ from shared.evaluation import (
 from shared.extras import MissingExtraError, require
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
 from shared.service_shell import OneLineArgumentParser, plain_help
-from shared.track import Track, TrackError, load_track
+from shared.track import TRACK_SPEC_HELP, Track, TrackError, load_track
 
 _ROW_ID = "rerun.controls.RowId"
 _SCALARS = "Scalars:scalars"
 #: Temporal entities (path prefixes) whose rows (AnyValues fields, text logs) are read.
 ROW_ENTITIES = ("events/", "plan/info")
-_METHOD_NAMES = {CIMPCC: "CiMPCC", MPCC: "MPCC"}
 
 
 @dataclass
@@ -277,7 +277,7 @@ def method_run(data: RecordingData, track: Track, profile: CurvatureProfile) -> 
     infos = data.rows.get("plan/info", [])
     method = str(infos[-1].get("method")) if infos else ""
     return MethodRun(
-        name=_METHOD_NAMES.get(method, method or "recorded"),
+        name=method if method in METHODS else "recorded",
         laps=laps,
         trace=trace,
         solve_times_ms=[float(v) for v in solve],
@@ -296,23 +296,57 @@ def build_report(
     track = track_of(data, track_spec)
     profile = track_profile(track, cfg.curvature)
     run = method_run(data, track, profile)
-    doc = results_document(track.name, track.length_m, [run],
-                           meta={"recording": str(data.path), "complete": data.complete,
-                                 "timelines": sorted(data.timelines)})
+    reference, why_not = limit_reference(track, cfg)
+    meta = {"recording": str(data.path), "complete": data.complete,
+            "timelines": sorted(data.timelines)}
+    if why_not:
+        meta["no_reference"] = why_not
+    doc = results_document(track.name, track.length_m, [run], meta=meta, reference=reference)
     return doc, run, track, profile
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``racestack report RUN.rrd|RUN_DIR [--out DIR] [--track SPEC] [--config FILE]``."""
+def limit_reference(track: Track, cfg: RacestackConfig) -> tuple[dict[str, Any] | None, str]:
+    """(the ``reference`` of results.json, "") when the minimum-time lap of the simulated car
+    on `track` (the bench's reference: ``limit_request``) is in the cache, else (None, one
+    line saying why and the command that makes it). Never solves."""
+    from services.planner import (
+        MIN_TIME_LIMIT,
+        MinTimeArtefactMissingError,
+        MinTimeError,
+        limit_request,
+        load_min_time_lap,
+    )
+
+    try:
+        lap = load_min_time_lap(track, *limit_request(cfg.planner, cfg.simulator.vehicle),
+                                use=MIN_TIME_LIMIT)
+    except MinTimeArtefactMissingError as exc:
+        return None, (f"no min-time ratio: no minimum-time lap of this car on {track.name} "
+                      f"in the cache (make it with: {exc.command})")
+    except MinTimeError as exc:
+        return None, f"no min-time ratio: {exc}"
+    return reference_document(lap), ""
+
+
+def build_parser() -> OneLineArgumentParser:
+    """The arguments of ``racestack report``."""
     ap = OneLineArgumentParser(prog="racestack report", description=plain_help(__doc__))
     ap.add_argument("recording", help="a telemetry .rrd file or its run folder")
     ap.add_argument("--out", metavar="DIR",
                     help="where results.json and the figures go (default: <run>/report)")
-    ap.add_argument("--track", help="track (built-in name, folder or file) instead of the "
-                                    "recorded one")
-    ap.add_argument("--config", help="TOML configuration (curvature settings of Fig. 4/5)")
-    ap.add_argument("--no-figures", action="store_true", help="print the table only")
-    args = ap.parse_args(argv)
+    ap.add_argument("--track", help=f"{TRACK_SPEC_HELP} instead of the recorded one "
+                    "(default: the recording's meta/track source, else its recorded lines)")
+    ap.add_argument("--config", help="TOML configuration: the curvature settings of Fig. 4/5 "
+                    "and the car of the min-time ratio (default: the built-in configuration)")
+    ap.add_argument("--no-figures", action="store_true",
+                    help="print the table and write results.json only (default: the figures "
+                    "too)")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``racestack report RUN.rrd|RUN_DIR [--out DIR] [--track SPEC] [--config FILE]``."""
+    args = build_parser().parse_args(argv)
     if not args.no_figures:
         try:
             require("matplotlib")  # the [tools] extra
@@ -351,6 +385,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"recording {rrd} ({run.name}, {len(run.trace.t_s)} planner ticks, "
           f"{len(run.solve_times_ms)} solves{cut})")
     print(format_table(doc))
+    if doc["meta"].get("no_reference"):
+        print(doc["meta"]["no_reference"])
     out.mkdir(parents=True, exist_ok=True)
     write_results(out / "results.json", doc)
     if not args.no_figures:

@@ -6,9 +6,13 @@ slam_toolbox, the F1TENTH maps) with ``shared.track.from_map``, then writes
 ``DIR/<name>_from_map.png`` (the result over the map). The same extraction runs when a
 ``MAP.yaml`` is given as ``--track`` or as ``[track] source``.
 
-Defaults: driving direction that of the centreline published beside the map if there is
-one (``<stem>_centerline.csv`` or ``*_track_centerline_waypoints.csv``), else
-counter-clockwise; the first point is the centreline point nearest ``--start`` or, without
+Driving direction: that of the centreline published beside the map if there is one
+(``<stem>_centerline.csv`` or ``*_track_centerline_waypoints.csv``), else ``--direction`` is
+required (exit code 2 and one line saying so): a map alone does not tell which way the car
+drives (guessing from the map frame's x axis, where SLAM started facing, picked the published
+direction on only 4 of the 7 maps with a published line), and a wrong guess races the track
+backwards without a word. ``--direction`` given beside a published line overrides it. The
+first point is the centreline point nearest ``--start`` or, without
 it, nearest the map frame's origin (0, 0) - where the SLAM run usually started.
 """
 
@@ -57,13 +61,13 @@ def _positive_m(text: str) -> float:
     return v
 
 
-def _smoothing_m(text: str) -> float:
+def _smoothing_cells(text: str) -> float:
     try:
         v = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a length in metres, got {text!r}") from None
-    if not (np.isfinite(v) and 0.0 <= v <= 50.0):
-        raise argparse.ArgumentTypeError(f"expected a length in [0, 50] m, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a number of cells, got {text!r}") from None
+    if not (np.isfinite(v) and 0.0 <= v <= 5.0):
+        raise argparse.ArgumentTypeError(f"expected a number of cells in [0, 5], got {text!r}")
     return v
 
 
@@ -80,8 +84,8 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     )
     ap.add_argument(
         "--direction", choices=("cw", "ccw"),
-        help="driving direction (default: that of the centreline published beside the map, "
-        "else ccw)",
+        help="driving direction, clockwise or counter-clockwise around the infield (default: "
+        "that of the centreline published beside the map; required without one)",
     )
     ap.add_argument(
         "--start", type=_xy_pair, metavar="X,Y",
@@ -93,10 +97,12 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
         help="spacing of the centreline points [m] (default %(default)s)",
     )
     ap.add_argument(
-        "--smoothing-m", type=_smoothing_m, default=None,
-        help="window of the periodic smoothing [m of arc] (default max(1.0 m, 20 cells))",
+        "--smoothing-cells", type=_smoothing_cells, default=MapTrackOptions.smoothing_cells,
+        help="RMS distance [map cells] the periodic smoothing spline may keep from the "
+        "pixel centreline; 0: no smoothing (default %(default)s)",
     )
-    ap.add_argument("--name", help="track name for the file names (default: the map's stem)")
+    ap.add_argument("--name", help="track name for the file names (default: the map's stem "
+                    "without _map)")
     return ap
 
 
@@ -154,10 +160,17 @@ def _run(args: argparse.Namespace) -> int:
     grid = load_ros_map(map_path)
     published = published_centerline_beside(map_path)
     direction = args.direction
+    if direction is None and published is None:
+        print(f"racestack: error: no centreline beside {map_path} tells the driving "
+              "direction; pass --direction cw or --direction ccw (clockwise or "
+              "counter-clockwise around the infield)", file=sys.stderr)
+        return 2
     if direction is None:
-        direction = "ccw" if published is None or signed_area(published[1]) > 0 else "cw"
+        assert published is not None
+        direction = "ccw" if signed_area(published[1]) > 0 else "cw"
+        print(f"direction: {direction} (that of {published[0]}; --direction overrides it)")
     options = MapTrackOptions(
-        direction=direction, spacing_m=args.spacing_m, smoothing_m=args.smoothing_m,
+        direction=direction, spacing_m=args.spacing_m, smoothing_cells=args.smoothing_cells,
         start_xy_m=args.start,
     )
     name = args.name or map_path.stem.removesuffix("_map")

@@ -73,8 +73,8 @@ class LocalizationSettings(Section):
         initial_pose: lidar, init = "start": [x m, y m, yaw rad] of the rear axle; None: the
             track's centreline at arc length `start_s_m`, heading along it.
         start_s_m: where the car starts, as arc length from the start line [m] (default: the
-            simulator's start, its CoG 0.3 m behind the line and the rear axle lr = 0.17 m
-            further back).
+            simulator's start, its CoG 0.3 m past the line for the out lap, and the rear
+            axle lr = 0.17 m behind the CoG).
         publish_rate_hz: rate of ``state`` [Hz].
         history_s: measurements are kept this long for re-propagation; older stamps are
             rejected as stale [s].
@@ -107,7 +107,7 @@ class LocalizationSettings(Section):
     pose_source: Literal["external", "lidar"] = "external"
     init: Literal["start", "global"] = "start"
     initial_pose: tuple[float, float, float] | None = None
-    start_s_m: float = Field(-0.47, ge=-1e4, le=1e4, allow_inf_nan=False)
+    start_s_m: float = Field(0.13, ge=-1e4, le=1e4, allow_inf_nan=False)
     publish_rate_hz: float = Field(100.0, gt=0.0, le=1000.0, allow_inf_nan=False)
     history_s: float = Field(0.5, gt=0.0, le=10.0, allow_inf_nan=False)
     future_tolerance_s: float = Field(0.05, ge=0.0, le=10.0, allow_inf_nan=False)

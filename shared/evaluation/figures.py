@@ -13,8 +13,8 @@ own panel in Fig. 6 and its lap time in Fig. 7.
 
 The data-level choices are plain functions, tested without pixels: ``break_gaps`` (a gap
 in s is a gap in the line, not a straight segment), ``compute_time_axis_ms`` (Fig. 8's axis
-is set by the p99 of the samples, not by one outlier), ``no_solver`` (the raceline's pure
-pursuit has a compute time, not a solve time).
+is set by the p99 of the samples, not by one outlier), ``no_solver`` (the raceline's tracker
+has a compute time, not a solve time: it runs no optimiser per tick).
 """
 
 from __future__ import annotations

@@ -33,6 +33,10 @@ from typing import Any
 
 import numpy as np
 
+#: Where a race starts: the car at rest this far past the start line [m], so it drives an
+#: out lap (nearly a whole lap, not timed) and the timed laps are flying laps. The bench's
+#: start (``LoopOptions.start_offset_m``) and the simulator service's (``racestack up``).
+OUT_LAP_START_M = 0.3
 #: A lap counts as below the limit when it is faster than the minimum-time lap by more than
 #: this [s] (the lap timer's interpolation and the limit's rounding).
 LIMIT_TOLERANCE_S = 1e-3
@@ -151,6 +155,21 @@ def method_json(run: MethodRun) -> dict[str, Any]:
         "off_track_events_all": run.run_off_track_events,
         "out_lap_off_track_events": run.out_lap_off_track_events,
         **run.extra,
+    }
+
+
+def reference_document(lap: Any) -> dict[str, Any]:
+    """The ``reference`` of results.json from a minimum-time lap (a
+    ``services.planner.MinTimeLap``, read by attribute: this package imports no service)."""
+    return {
+        "min_time_lap_s": lap.lap_time_s,
+        "v_max_mps": lap.v_max_mps,
+        "tyre_model": lap.tyre_model,
+        "ds_m": lap.ds_m,
+        "margin_m": lap.margin_m,
+        "solver_status": lap.status,
+        "solve_time_s": lap.solve_time_s,
+        "cache_hit": lap.cache_hit,
     }
 
 

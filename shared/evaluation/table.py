@@ -100,8 +100,10 @@ def format_table(doc: dict[str, Any]) -> str:
                 lines.append(f"ERROR {n}: {err}")
     for n in names:
         if no_solver(n):
-            lines.append(f"note: {n} runs no solver (a model-based tracker on its line): its "
-                         "solve time is the compute time of its planner tick")
+            lines.append(f"note: {n} runs no online solver: a feed-forward + feedback tracker "
+                         "on its precomputed line (by default the minimum-time lap, solved "
+                         "offline once and cached); its solve time is the compute time of "
+                         "its planner tick")
     for n in names:
         m = methods[n]
         if m["completed_laps"] < m.get("requested_laps", m["completed_laps"]):

@@ -20,6 +20,7 @@ Formats (see ``docs`` in the README):
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -28,6 +29,8 @@ import numpy as np
 
 from shared.track.errors import TrackError
 from shared.track.geometry import MIN_POINTS, Track
+
+log = logging.getLogger(__name__)
 
 #: Names of the built-in tracks shipped with the package; the first is the default.
 BUILTIN_TRACKS = ("paperlike", "gentle")
@@ -253,7 +256,9 @@ def load_map_track(map_yaml: str | Path, options=None) -> Track:
 
     `options` is a ``MapTrackOptions``; None: the defaults, with the driving direction of
     the centreline published beside the map (``published_centerline_beside``) if there is
-    one, else counter-clockwise. Raises TrackError naming the map and the problem.
+    one, else counter-clockwise, with a warning saying it was guessed (one line; ``racestack
+    track --from-map MAP --direction cw`` makes a clockwise track). Raises TrackError
+    naming the map and the problem.
     """
     from shared.track.from_map import MapTrackOptions, signed_area, track_from_grid
     from shared.track.occupancy import load_ros_map
@@ -261,6 +266,11 @@ def load_map_track(map_yaml: str | Path, options=None) -> Track:
     path = Path(map_yaml)
     if options is None:
         published = published_centerline_beside(path)
+        if published is None:
+            log.warning(
+                "direction: ccw (guessed: no centreline beside %s; for clockwise make the "
+                "track with racestack track --from-map %s --direction cw --out DIR)", path, path
+            )
         direction = "ccw" if published is None or signed_area(published[1]) > 0 else "cw"
         options = MapTrackOptions(direction=direction)
     grid = load_ros_map(path)

@@ -37,6 +37,7 @@ from services.planner.mintime.ocp import MinTimeSettings
 from services.planner.mintime.requests import LIMIT, planning_vehicle
 from services.planner.service import main as planner_main
 from services.tools.cli import main as racestack_main
+from shared.commands import racestack_command
 from shared.config import config_from_dict, load_config
 from shared.config.methods import CIMPCC_LINE as LINE
 from shared.config.methods import RACELINE
@@ -47,6 +48,8 @@ from shared.track import Track, TrackError, load_track
 #: The built-in track whose laps solve fastest (paperlike: 43 m, a few seconds each).
 TRACK = "paperlike"
 ROOT = Path(__file__).resolve().parents[2]
+#: How the commands the errors name start here (``shared.commands``: runnable as printed).
+RACESTACK = racestack_command()
 
 
 @pytest.fixture
@@ -104,7 +107,7 @@ def test_the_loader_only_reads_and_its_error_is_one_line_naming_the_command(
     assert text.startswith(f"no minimum-time lap for {use} of this car on {TRACK} (cache ")
     assert str(tmp_path / "mintime") in text
     assert text.endswith(
-        f"make it with: racestack mintime --for {use} --track builtin:{TRACK} "
+        f"make it with: {RACESTACK} mintime --for {use} --track builtin:{TRACK} "
         f"--cache {tmp_path} [--config FILE]"
     )
     assert err.command in text and err.path.parent == tmp_path / "mintime"
@@ -119,7 +122,7 @@ def test_a_lap_of_other_settings_names_them(tmp_path: Path, no_ipopt: None) -> N
         load_min_time_lap(load_track(TRACK), F1TENTH_GYM, MinTimeSettings(5.0, ds_m=0.2),
                           cache_dir=tmp_path)
     assert "no minimum-time lap of this car" in str(info.value)
-    assert "racestack mintime --track builtin:paperlike --v-max 5 --ds 0.2 --margin 0.02" in (
+    assert f"{RACESTACK} mintime --track builtin:paperlike --v-max 5 --ds 0.2 --margin 0.02" in (
         info.value.command
     )
 
@@ -138,7 +141,7 @@ def test_the_planner_process_fails_fast_without_its_lap(
     assert err.count("\n") == 1 and "Traceback" not in err, err
     assert err.startswith(f"planner: error: no minimum-time lap for {method} of this car on ")
     assert err.rstrip().endswith(
-        f"make it with: racestack mintime --for {method} --track builtin:{TRACK} "
+        f"make it with: {RACESTACK} mintime --for {method} --track builtin:{TRACK} "
         f"--config {config}"
     )
     assert str(empty_cache / "mintime") in err
@@ -160,7 +163,7 @@ def test_the_planner_process_exits_at_once_without_its_lap(tmp_path: Path) -> No
     lines = [ln for ln in done.stderr.splitlines() if ln.strip() and " INFO " not in ln]
     assert len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
     assert lines[0].startswith("planner: error: no minimum-time lap for cimpcc-line")
-    assert "make it with: racestack mintime --for cimpcc-line" in lines[0]
+    assert f"make it with: {RACESTACK} mintime --for cimpcc-line" in lines[0]
     assert "solving" not in done.stdout + done.stderr
     assert not (tmp_path / "cache" / "mintime").exists()
 
@@ -213,7 +216,7 @@ def test_the_named_command_makes_the_lap_the_planner_reads(
         make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
     command = info.value.for_config(str(config), cfg.track.source).command
     argv = shlex.split(command)
-    assert argv[:2] == ["racestack", "mintime"]
+    assert argv[:2] == [RACESTACK, "mintime"]  # runnable as printed (shared.commands)
     out = tmp_path / "out"
     assert racestack_main([*argv[1:], "--out", str(out), "--no-figures"]) == 0
     printed = capsys.readouterr()

@@ -45,6 +45,7 @@ from services.planner.mintime.ocp import (
     solve_min_time,
 )
 from services.planner.mintime.requests import laps_of, request_for
+from shared.commands import racestack_command
 from shared.config.planner import PlannerSettings
 from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track
@@ -132,7 +133,7 @@ def mintime_command(
             ``CONFIG_PLACEHOLDER``: not known, written as ``[--config FILE]``.
         cache_dir: ``--cache`` DIR; None: the default cache (no ``--cache``).
     """
-    words = ["racestack", "mintime"]
+    words = [racestack_command(), "mintime"]  # runnable as printed (shared.commands)
     if use is not None:
         words += ["--for", use]
     words += ["--track", shlex.quote(track_spec)]

@@ -120,6 +120,15 @@ def _compile(problem: OcpProblem, settings: SolverSettings, target: Path) -> Non
         os.replace(tmp_so, target)
 
 
+def compiled_problem_line(library: Path, hit: bool) -> str:
+    """The log line of a compiled problem: loaded from the cache (`hit`), or compiled now
+    into `library` (once per problem structure and solver settings, then read from there)."""
+    if hit:
+        return f"compiled problem functions from the cache: {library}"
+    return (f"compiling the problem functions into {library} (not in the cache yet; later "
+            "starts load it from there)")
+
+
 def make_solver(problem: OcpProblem, settings: SolverSettings) -> SolverHandle:
     """Create the solver for `problem`; compile (or load from cache) when asked and possible."""
     opts = solver_options(problem, settings)
@@ -127,9 +136,9 @@ def make_solver(problem: OcpProblem, settings: SolverSettings) -> SolverHandle:
         cache_dir = Path(settings.cache_dir) if settings.cache_dir else default_cache_dir()
         library = cache_dir / f"cimpcc-{cache_key(problem, settings)}.so"
         hit = library.exists()
+        log.info("%s", compiled_problem_line(library, hit))
         try:
             if not hit:
-                log.info("compiling the problem functions into %s (once)", library)
                 _compile(problem, settings, library)
             solve = ca.nlpsol("planner", settings.backend, str(library), opts)
             return SolverHandle(solve, settings.backend, True, str(library), hit)

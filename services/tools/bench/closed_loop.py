@@ -23,6 +23,7 @@ from services.tools.bench.race import race
 from shared.config.localization import LocalizationSettings
 from shared.config.simulator import SimulatorSettings
 from shared.evaluation import LapRecord, MethodRun, Trace
+from shared.evaluation.results import OUT_LAP_START_M
 from shared.track import Track
 
 #: The car gives up a method after this long without progress along the track [s].
@@ -50,7 +51,7 @@ class LoopOptions:
     laps: int = 17
     delay_mode: str = "fixed"
     compute_delay_s: float = 0.002
-    start_offset_m: float = 0.3
+    start_offset_m: float = OUT_LAP_START_M
     max_lap_time_s: float | None = None
     estimator: str = "truth"
     localization: LocalizationSettings | None = None

@@ -32,12 +32,14 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
 from services.planner import (
+    MIN_TIME_LIMIT,
     MinTimeError,
     Planner,
     PlannerLike,
@@ -51,7 +53,7 @@ from services.tools.bench.closed_loop import LoopOptions, run_method
 from services.tools.bench.estimation import ESTIMATORS
 from services.tools.bench.tuned import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
-from shared.config.methods import METHODS, bench_methods
+from shared.config.methods import CIMPCC, METHODS, MPCC, bench_methods
 from shared.config.planner import MethodWeights
 from shared.curvature import track_profile
 from shared.evaluation import (
@@ -60,13 +62,17 @@ from shared.evaluation import (
     format_paper_table,
     format_table,
     paper_table_applies,
+    reference_document,
     results_document,
     write_figures,
     write_results,
 )
 from shared.outdir import writable_dir_problem
+from shared.service_shell import OneLineArgumentParser, count_problem, positive_int
 from shared.track import TRACK_SPEC_HELP, Track, TrackError, load_track
 
+#: The methods ``--methods`` races by default: the paper's two.
+DEFAULT_METHODS = (CIMPCC, MPCC)
 #: Progress-speed references [m/s] a swept variant tries (v_l ref = 1.1 x v_p ref).
 DEFAULT_SWEEP_MPS = (2.2, 2.4, 2.6, 2.8, 3.0, 3.2, 3.4)
 
@@ -170,6 +176,49 @@ class ProgressBar:
             self._open = False
 
 
+class Heartbeat:
+    """While a long step runs (IPOPT on the minimum-time lap, building and compiling a
+    planner): a line on `stream` every `period_s` [s] of wall time, ``LABEL: still at it,
+    20 s``, so a 400 m track's minutes of solving are not minutes of silence; nothing when
+    the step ends sooner (a cache hit says nothing). A context manager: the lines come from
+    a daemon thread (IPOPT runs in C, the thread gets its turn)."""
+
+    def __init__(self, label: str, stream=None, period_s: float = 10.0) -> None:
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.period_s = period_s
+        self.lines = 0  #: lines written so far
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name="heartbeat", daemon=True)
+        self._t0 = 0.0
+
+    def _beat(self) -> None:
+        while not self._done.wait(self.period_s):
+            self.stream.write(f"{self.label}: still at it, "
+                              f"{time.perf_counter() - self._t0:.0f} s\n")
+            self.stream.flush()
+            self.lines += 1
+
+    def __enter__(self) -> Heartbeat:
+        self._t0 = time.perf_counter()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._done.set()
+        self._thread.join()
+
+    @property
+    def elapsed_s(self) -> float:
+        """Wall time since the step started [s]."""
+        return time.perf_counter() - self._t0
+
+
+def _stderr(line: str) -> None:
+    """A progress line of the bench (stderr: stdout holds the table)."""
+    print(line, file=sys.stderr, flush=True)
+
+
 class _Watched:
     """A planner that tells a ``ProgressBar`` the progress of every step (all else is the
     planner's own)."""
@@ -255,28 +304,21 @@ def min_time_reference(
     `track` at the planners' top speed (cached per track and car), or None (with a line
     on stderr) when the track allows none. Its line for the figures is appended to
     `lines` (when given)."""
-    print("minimum-time reference lap (solved once per track and car, then cached) ...",
-          file=sys.stderr)
     try:
-        lap = make_min_time_lap(track, *limit_request(cfg.planner, cfg.simulator.vehicle),
-                                use="limit", progress=None)
+        with Heartbeat("minimum-time reference lap") as beat:
+            lap = make_min_time_lap(track, *limit_request(cfg.planner, cfg.simulator.vehicle),
+                                    use=MIN_TIME_LIMIT, progress=_stderr)
     except MinTimeError as exc:
         print(f"no minimum-time reference: {exc}", file=sys.stderr)
         return None
+    how = ("from the cache" if lap.cache_hit else
+           f"solved in {beat.elapsed_s:.0f} s, cached for the next run")
+    _stderr(f"minimum-time reference lap on {track.name}: {lap.lap_time_s:.3f} s ({how})")
     if lines is not None:
         s_m, _ = track.project(np.stack([lap.x_m, lap.y_m], axis=1))
         lines.append(ReferenceLine(lap.lap_time_s, np.asarray(lap.x_m), np.asarray(lap.y_m),
                                    np.mod(s_m, track.length_m), np.asarray(lap.v_mps)))
-    return {
-        "min_time_lap_s": lap.lap_time_s,
-        "v_max_mps": lap.v_max_mps,
-        "tyre_model": lap.tyre_model,
-        "ds_m": lap.ds_m,
-        "margin_m": lap.margin_m,
-        "solver_status": lap.status,
-        "solve_time_s": lap.solve_time_s,
-        "cache_hit": lap.cache_hit,
-    }
+    return reference_document(lap)
 
 
 def mismatch_note(cfg: RacestackConfig) -> str:
@@ -315,10 +357,19 @@ def run_bench(
         ref_doc = min_time_reference(track, cfg, ref_lines)
         timings["min-time reference"] = time.perf_counter() - t_start
     for name in methods:  # the minimum-time laps the planners read (made once, cached)
-        ensure_artefacts(name, track, cfg.planner, cfg.vehicle)
+        with Heartbeat(f"the minimum-time lap {name} races on"):
+            ensure_artefacts(name, track, cfg.planner, cfg.vehicle, progress=_stderr)
     pool = PlannerPool(track, cfg.vehicle)  # the planners' car; the simulator races its own
     # built first: a track that allows no line is an error before anything races
-    planners = {name: pool.planner(cfg.planner, name, cfg.curvature) for name in methods}
+    planners = {}
+    for name in methods:
+        spec = METHODS[name]
+        what = "line and planner" if spec.reference != "centreline" else "planner"
+        how = " (its compiled problem: once per structure, then from the cache)" if (
+            spec.kind == "mpc") else ""
+        _stderr(f"building the {what} for {name} on {track.name}{how} ...")
+        with Heartbeat(f"building the {what} for {name}"):
+            planners[name] = pool.planner(cfg.planner, name, cfg.curvature)
     profile = track_profile(track, cfg.curvature)
     runs: list[MethodRun] = []
     for name in methods:
@@ -384,15 +435,22 @@ def run_bench(
 
 def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """Arguments of ``racestack bench``."""
-    ap = ap or argparse.ArgumentParser(prog="racestack bench", description=__doc__.splitlines()[0])
-    ap.add_argument("--config", help="TOML configuration file")
+    ap = ap or OneLineArgumentParser(prog="racestack bench",
+                                     description=__doc__.splitlines()[0])
+    ap.add_argument("--config", help="TOML configuration file (default: the built-in "
+                    "configuration)")
     ap.add_argument(
         "--track", help=f"{TRACK_SPEC_HELP} (default: the config's [track] source)"
     )
-    ap.add_argument("--laps", type=int, default=17, help="timed flying laps per method")
     ap.add_argument(
-        "--methods", default="cimpcc,mpcc",
-        help=f"comma list of {', '.join(bench_methods())} (default cimpcc,mpcc)",
+        "--laps", type=positive_int, default=17,
+        help="timed flying laps per method, after an untimed out lap (a whole number >= 1; "
+        "default 17, the paper's)",
+    )
+    ap.add_argument(
+        "--methods", default=",".join(DEFAULT_METHODS),
+        help=f"the methods to race, a comma list of {', '.join(bench_methods())} (default "
+        f"{','.join(DEFAULT_METHODS)})",
     )
     ap.add_argument("--out", default=None, help="output folder (default runs/bench-<time>)")
     ap.add_argument(
@@ -411,18 +469,26 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap.add_argument(
         "--sweep",
         default=",".join(f"{v:g}" for v in DEFAULT_SWEEP_MPS),
-        help="a swept variant (mpcc-tuned): progress-speed references to try [m/s]",
+        help="a swept variant (mpcc-tuned): progress-speed references to try [m/s], a comma "
+        "list (default %(default)s)",
     )
-    ap.add_argument("--sweep-laps", type=int, default=3)
-    ap.add_argument("--tuned", help="cimpcc-tuned: a tuned configuration (racestack tune's "
-                    "best.toml); default: the configuration's own [planner.cimpcc]")
     ap.add_argument(
-        "--no-figures", action="store_true", help="write results.json only, no PNG figures"
+        "--sweep-laps", type=positive_int, default=3,
+        help="a swept variant (mpcc-tuned): laps raced at each swept value before the full "
+        "run (a whole number >= 1; default 3)",
+    )
+    ap.add_argument("--tuned", metavar="FILE",
+                    help="cimpcc-tuned: a tuned configuration (racestack tune's best.toml); "
+                    "default: the configuration's own [planner.cimpcc]")
+    ap.add_argument(
+        "--no-figures", action="store_true",
+        help="write results.json only, no PNG figures (default: the paper's figures too)"
     )
     ap.add_argument(
         "--no-reference",
         action="store_true",
-        help="skip the minimum-time reference lap (solved once per track and car, cached)",
+        help="skip the minimum-time reference lap (solved once per track and car, cached; "
+        "default: race against it, the table's min-time ratio)",
     )
     ap.add_argument(
         "--estimator",
@@ -437,14 +503,18 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
 
 def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) -> int:
     """Run the bench from the command line; exit code 0 on success, 2 on bad arguments."""
-    args = args or build_parser().parse_args(argv)
+    if args is None:
+        try:  # a usage error (e.g. --laps 0) is the parser's one line and exit code 2
+            args = build_parser().parse_args(argv)
+        except SystemExit as exc:
+            return exc.code if isinstance(exc.code, int) else 2
     try:
         cfg = load_config(args.config)
         methods = parse_methods(args.methods)
-        if args.laps < 1:
-            raise BenchError("--laps must be at least 1")
-        if args.sweep_laps < 1:
-            raise BenchError("--sweep-laps must be at least 1")
+        for option, value in (("--laps", args.laps), ("--sweep-laps", args.sweep_laps)):
+            problem = count_problem(option, value)
+            if problem:
+                raise BenchError(problem)
         if not 0.0 <= args.compute_delay_ms <= 1e3 * cfg.planner.dt_s:
             raise BenchError(f"--compute-delay-ms must be in [0, {1e3 * cfg.planner.dt_s:g}]")
         try:

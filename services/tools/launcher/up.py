@@ -7,14 +7,30 @@ from the simulator), prints the lap table and each process's CPU use over the ra
 (``cpu.py``: the children and the launcher with its hub) and stops every child. Ctrl-C stops
 them all too; a child that dies is reported and the rest are stopped.
 
-On the terminal: the ``rerun --connect ...`` line of ``--serve``; the progress of
+The race starts as the bench's does: the car at rest just past the start line
+(``shared.evaluation.results.OUT_LAP_START_M``), so it drives an **out lap** first (shown
+as ``out lap`` in the progress, not timed, not in the lap table or its mean; its off-track
+events are counted as the out lap's), then ``--laps`` flying laps.
+
+``--track SPEC`` and ``--method NAME`` override ``[track] source`` and ``[planner] method``
+(the same track specs as ``bench --track``, the methods of the registry): the launcher then
+writes the configuration the services read to ``RUN/config.toml`` (the ``--config`` file's
+tables with the two values replaced) and starts every service with it.
+
+On the terminal (stdout): the ``rerun --connect ...`` line of ``--serve``; the progress of
 the lap being driven and the planned speed (from ``planner/plan``: one line rewritten in
-place on a TTY, a line every 10 s otherwise); on Ctrl-C the table of the laps finished so
-far, then the stack stops (exit code 130). It cannot start (exit code 2, one line on
-stderr, nothing started, no empty run folder left) when the run folder cannot be written,
-the hub's port or the ``--serve`` port is already in use, or the services' ``[bus] connect``
-endpoints are not where this hub listens: ``up`` is the hub, so a hub nobody can reach is
-a configuration error to fix, not something to wait for.
+place on a TTY, a line every 10 s otherwise); the hints at the end name commands that run
+as printed (``.venv/bin/rerun`` when ``.venv/bin`` is not on ``PATH``,
+``shared.commands.runnable``). Logging: the launcher's own log lines (with timestamps) go
+to ``RUN/logs/launcher.log`` beside the services' logs; the console gets only warnings and
+errors, one short line each (``racestack up: warning: ...``); ``-v`` puts every line
+(debug included, with timestamps) on stderr too (``console_logging``, ``run_log``). On
+Ctrl-C the table of the laps finished so far, then the stack stops (exit code 130). It
+cannot start (exit code 2, one line on stderr, nothing started, no empty run folder left)
+when the run folder cannot be written, the hub's port or the ``--serve`` port is already in
+use, or the services' ``[bus] connect`` endpoints are not where this hub listens: ``up`` is
+the hub, so a hub nobody can reach is a configuration error to fix, not something to wait
+for; so does a ``--track`` no loader takes (``--method`` takes only the registry's).
 
 Before the planner process starts, ``up`` makes the minimum-time lap its method races on
 (``services.planner.ensure_artefacts``: ``cimpcc-line``, a ``min_time`` raceline; a line
@@ -27,6 +43,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +52,9 @@ from services.planner import MinTimeError, ensure_artefacts
 from services.tools.launcher.cpu import CpuMeter, format_cpu
 from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus, BusOpenError
-from shared.config import RacestackConfig
+from shared.commands import racestack_command, runnable
+from shared.config import RacestackConfig, config_from_dict
+from shared.config.toml_write import dumps as toml_dumps
 from shared.evaluation import LapRecord, MethodRun, Trace, format_table, results_document
 from shared.evaluation.figures import plural
 from shared.keys import EVENTS_LOG, LAP, PLAN, SIM_CONTROL
@@ -53,7 +72,7 @@ from shared.net import loopback_port_taken
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
 from shared.roster import up_names
 from shared.service import Service, publishes, subscribes
-from shared.service_shell import HUB_WAIT_S, endpoint_reachable, hub_endpoints
+from shared.service_shell import HUB_WAIT_S, count_problem, endpoint_reachable, hub_endpoints
 from shared.track import Track, load_track
 
 log = logging.getLogger(__name__)
@@ -88,6 +107,78 @@ class UpOptions:
     start_timeout_s: float = 120.0
     lap_timeout_s: float = 120.0
     telemetry_args: list[str] = field(default_factory=list)
+    #: the configuration the services are to read instead of `config_path` (the overrides
+    #: of ``--track``/``--method``: ``up_config``), written to ``RUN/config.toml``; None:
+    #: `config_path` as it is.
+    config_data: dict | None = None
+    verbose: bool = False
+
+
+def up_config(
+    config_path: str | None, track: str | None = None, method: str | None = None
+) -> tuple[RacestackConfig, dict | None]:
+    """The configuration of ``up`` with ``--track``/``--method`` applied: (the validated
+    configuration, the TOML tables the services are to read, None without overrides).
+
+    Raises:
+        ConfigError: the file or a value is invalid (an unknown method among them).
+    """
+    from shared.config import load_config
+
+    cfg = load_config(config_path)  # the file's own one-line errors first
+    if track is None and method is None:
+        return cfg, None
+    data = tomllib.loads(Path(config_path).read_text(encoding="utf-8")) if config_path else {}
+    if track is not None:
+        data.setdefault("track", {})["source"] = track
+    if method is not None:
+        data.setdefault("planner", {})["method"] = method
+    where = f"{config_path or 'the built-in configuration'} with --track/--method"
+    return config_from_dict(data, where), data
+
+
+def console_logging(verbose: bool = False, stream=None) -> logging.Handler:
+    """Log to the console for ``up``: warnings and errors as one short line each
+    (``racestack up: warning: TEXT``); with `verbose` every line, debug included, with time
+    and logger. Replaces the root logger's handlers; returns the console handler."""
+    handler = logging.StreamHandler(stream or sys.stderr)
+    if verbose:
+        handler.setLevel(logging.DEBUG)
+        handler.setFormatter(logging.Formatter(LOG_FORMAT))
+    else:
+        handler.setLevel(logging.WARNING)
+        handler.setFormatter(_ShortFormatter())
+    root = logging.getLogger()
+    for old in list(root.handlers):
+        root.removeHandler(old)
+    root.addHandler(handler)
+    root.setLevel(logging.DEBUG if verbose else logging.INFO)
+    return handler
+
+
+def run_log(path: Path, verbose: bool = False) -> logging.Handler:
+    """Add the run's log file (`path`, every line from INFO, DEBUG with `verbose`, with
+    time and logger) to the root logger; returns the handler (remove and close it after)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setLevel(logging.DEBUG if verbose else logging.INFO)
+    handler.setFormatter(logging.Formatter(LOG_FORMAT))
+    logging.getLogger().addHandler(handler)
+    return handler
+
+
+#: The long log format: the run's log file, the console with ``-v``.
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+class _ShortFormatter(logging.Formatter):
+    """``racestack up: warning: TEXT`` (the exception's last line appended, if any)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = f"racestack up: {record.levelname.lower()}: {record.getMessage()}"
+        if record.exc_info and record.exc_info[1] is not None:
+            text += f" ({type(record.exc_info[1]).__name__}: {record.exc_info[1]})"
+        return text
 
 
 def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) -> int:
@@ -109,8 +200,9 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
     of the laps finished so far is printed), 2 when it cannot start (an unusable run
     folder, the hub port taken, a hub the services could not reach: one line on stderr,
     nothing started, no empty run folder left), else non-zero."""
-    if opts.laps < 1:
-        return _cannot_start(f"--laps must be at least 1, got {opts.laps}")
+    problem = count_problem("--laps", opts.laps)
+    if problem:
+        return _cannot_start(problem)
     serve = _serve_port(opts)
     if serve is not None and loopback_port_taken(serve):
         return _cannot_start(
@@ -144,12 +236,23 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
                 f"the services would connect to {', '.join(unreachable)}, where this hub "
                 f"does not listen ({', '.join(bus.settings.listen)}): fix [bus] connect"
             )
+        if opts.config_data is not None:  # --track/--method: the services read this one
+            path = run_dir / "config.toml"
+            path.write_text(toml_dumps(opts.config_data, "racestack up: the configuration "
+                                       "the services read (--track/--method applied)"),
+                            encoding="utf-8")
+            opts.config_path = str(path)
         print(
             f"racestack up: {cfg.planner.method} on {track.name} ({track.length_m:.2f} m), "
-            f"{plural(opts.laps, 'lap')}; logs and telemetry in {run_dir}",
+            f"an out lap and {plural(opts.laps, 'timed lap')}; logs and telemetry in {run_dir}",
             flush=True,
         )
-        return _race(cfg, opts, bus, track, run_dir, stop_requested)
+        file_log = run_log(run_dir / "logs" / "launcher.log", opts.verbose)
+        try:
+            return _race(cfg, opts, bus, track, run_dir, stop_requested)
+        finally:
+            logging.getLogger().removeHandler(file_log)
+            file_log.close()
 
 
 def _serve_port(opts: UpOptions) -> int | None:
@@ -188,16 +291,18 @@ def _unreachable_hub(cfg: RacestackConfig, services: tuple[str, ...]) -> list[st
 
 
 def lap_progress_line(lap: int, laps: int, s_m: float, length_m: float, v_mps: float) -> str:
-    """One progress line: ``lap 2/3: 12.3 of 32.8 m (38 %), 3.21 m/s``.
+    """One progress line: ``lap 2/3: 12.3 of 32.8 m (38 %), 3.21 m/s``; lap 0 is the out lap
+    (``out lap: 12.3 of 32.8 m (38 %), 3.21 m/s``).
 
     Args:
-        lap: the lap being driven (1-based); laps: the laps asked for.
+        lap: the lap being driven (1-based; 0: the out lap); laps: the laps asked for.
         s_m: progress along the centreline [m] (wrapped into the lap).
         length_m: the track length [m]; v_mps: the planned speed [m/s].
     """
     s = s_m % length_m if length_m > 0 else 0.0
     pct = 100.0 * s / length_m if length_m > 0 else 0.0
-    return f"lap {lap}/{laps}: {s:.1f} of {length_m:.1f} m ({pct:.0f} %), {v_mps:.2f} m/s"
+    where = "out lap" if lap == 0 else f"lap {lap}/{laps}"
+    return f"{where}: {s:.1f} of {length_m:.1f} m ({pct:.0f} %), {v_mps:.2f} m/s"
 
 
 class LiveLine:
@@ -263,6 +368,14 @@ class OffTrackTally:
         )
 
 
+def closing_hint(run_dir: Path) -> str:
+    """The last line of ``up``: where the recording is and the commands, runnable as
+    printed (``shared.commands``), that open it and draw its figures."""
+    rrd = f"{run_dir}/telemetry.*.rrd"
+    return (f"recording: {rrd} (open: {runnable('rerun')} {rrd}; figures: "
+            f"{racestack_command()} report {run_dir})")
+
+
 def _connect_line(log_path: Path | None, timeout_s: float) -> str | None:
     """The ``rerun --connect ...`` line telemetry wrote into its log (None if absent)."""
     deadline = time.monotonic() + timeout_s
@@ -270,7 +383,7 @@ def _connect_line(log_path: Path | None, timeout_s: float) -> str | None:
         if log_path.exists():
             for line in log_path.read_text(errors="replace").splitlines():
                 if "rerun --connect" in line:
-                    return "watch live with: rerun --connect " + line.split(
+                    return f"watch live with: {runnable('rerun')} --connect " + line.split(
                         "rerun --connect", 1)[1].strip()
         if time.monotonic() >= deadline:
             return None
@@ -344,8 +457,12 @@ def _race(
                 return _report_failure(sup, bus, opts, "race")
             for ev in lap_events.drain():
                 last_progress = time.monotonic()
+                started = tally.started
                 tally.see(ev)
-                if ev.kind == LapKindName.LAP and ev.lap_time_s is not None:
+                if ev.kind == LapKindName.START and not started:
+                    live.clear()
+                    print(f"out lap done: timing {plural(opts.laps, 'lap')}", flush=True)
+                elif ev.kind == LapKindName.LAP and ev.lap_time_s is not None:
                     laps.append(
                         LapRecord(
                             ev.lap_time_s,
@@ -369,7 +486,8 @@ def _race(
                     live.clear()
                     print(f"[{msg.source}] {msg.level}: {msg.text}", flush=True)
             if "s_m" in latest and len(laps) < opts.laps:
-                live.show(lap_progress_line(len(laps) + 1, opts.laps, latest["s_m"],
+                lap_now = len(laps) + 1 if tally.started else 0
+                live.show(lap_progress_line(lap_now, opts.laps, latest["s_m"],
                                             track.length_m, latest["v_mps"]))
             if time.monotonic() - last_progress > opts.lap_timeout_s:
                 live.clear()
@@ -387,8 +505,7 @@ def _race(
         print(format_cpu(cpu.stop()), flush=True)
         print("stopping the stack", flush=True)
     if "telemetry" in opts.services:
-        print(f"recording: {run_dir}/telemetry.*.rrd (open: rerun {run_dir}/telemetry.*.rrd;"
-              f" figures: racestack report {run_dir})", flush=True)
+        print(closing_hint(run_dir), flush=True)
     if interrupted:
         return 130
     return 0 if len(laps) >= opts.laps else 1

@@ -67,13 +67,16 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap.add_argument("--out", required=True, help="output folder (best.toml, trials, figure)")
     ap.add_argument("--storage", help="Optuna RDB URL (default sqlite:///OUT/study.db)")
     ap.add_argument("--study", help="study name (default METHOD@TRACK-HASH)")
-    ap.add_argument("--config", help="base TOML configuration (best.toml builds on it)")
+    ap.add_argument("--config", help="base TOML configuration (best.toml builds on it; "
+                    "default: the built-in configuration)")
     ap.add_argument("--laps", type=int, default=2, help="timed laps per seed (default 2)")
     ap.add_argument("--seeds", default="0,1,2", help="noise seeds, comma list (default 0,1,2)")
     ap.add_argument("--margin", type=float, default=0.05,
-                    help="the car's body stays this far inside the boundaries [m] (0.05)")
+                    help="the car's body stays this far inside the boundaries [m] (default "
+                    "0.05)")
     ap.add_argument("--pose-noise", type=float, default=1.0,
-                    help="pose noise seen by the planner, x the [simulator.pose] deviations")
+                    help="pose noise seen by the planner, x the [simulator.pose] deviations "
+                    "(default 1.0)")
     ap.add_argument("--v-max", type=float, default=None,
                     help="top speed v_l may reach [m/s] (default: the config's v_up v_l, "
                          "the paper's 4.18)")

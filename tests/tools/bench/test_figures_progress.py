@@ -52,3 +52,22 @@ def test_up_lap_progress_line_and_plural() -> None:
     live.show("a", now=live._last + 1.0)  # too early
     live.show("b", now=live._last + 6.0)
     assert out.getvalue() == "b\n"
+
+
+def test_a_long_step_says_it_is_still_at_it_and_a_short_one_says_nothing() -> None:
+    """Issue #22: minutes of IPOPT on a 400 m track are not minutes of silence."""
+    import threading
+
+    from services.tools.bench.run import Heartbeat
+
+    quiet = io.StringIO()
+    with Heartbeat("the minimum-time lap", stream=quiet, period_s=60.0):
+        pass  # a cache hit
+    assert quiet.getvalue() == ""
+    out = io.StringIO()
+    seen = threading.Event()
+    with Heartbeat("the minimum-time lap", stream=out, period_s=0.01) as beat:
+        while beat.lines == 0:  # the step runs until the heartbeat spoke once
+            seen.wait(0.01)
+    first = out.getvalue().splitlines()[0]
+    assert first.startswith("the minimum-time lap: still at it, ") and first.endswith(" s")

@@ -38,4 +38,5 @@ def test_paper_table_only_beside_map416() -> None:
 
 def test_table_says_the_raceline_has_no_solver() -> None:
     text = format_table(results_document("t", 30.0, [_run("raceline", 10.0)]))
-    assert "raceline runs no solver" in text
+    assert "raceline runs no online solver: a feed-forward + feedback tracker" in text
+    assert "pure pursuit" not in text  # replaced by the tracker (issue #22)
