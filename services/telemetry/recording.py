@@ -38,11 +38,12 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rerun as rr
 
 from services.telemetry.blueprint import default_blueprint, save_blueprint
@@ -259,6 +260,11 @@ class RunRecording:
             "rejected": {f"{k} {r}": n for (k, r), n in rejected.items()},
             "seq_gaps": {k: n for k, n in seq_gaps.items() if n},
             "record_errors": recorder.errors,
+            "series_samples_sent": recorder.scalars.sent,
+            "messages_decimated": recorder.shed,
+            "drawings": recorder.drawn,
+            "send_delay_ms": delay_summary(recorder.scalars.delays_s),
+            "draw_delay_ms": delay_summary(recorder.draw_delays_s),
         }
         recorder.event("telemetry", "info",
                        f"recording closed: {sum(recorder.counts.values())} messages logged, "
@@ -277,6 +283,15 @@ class RunRecording:
         _close_stream(self.rec, self.rrd)
         if self.live is not None:
             _close_stream(self.live, None)
+
+
+def delay_summary(delays_s: Iterable[float]) -> dict[str, float | int | None]:
+    """n, median, p99 and max [ms] of delays [s] (None without samples)."""
+    a = np.fromiter(delays_s, dtype=float) * 1e3
+    if a.size == 0:
+        return {"n": 0, "median": None, "p99": None, "max": None}
+    return {"n": int(a.size), "median": round(float(np.median(a)), 2),
+            "p99": round(float(np.percentile(a, 99)), 2), "max": round(float(a.max()), 2)}
 
 
 def _close_stream(rec: rr.RecordingStream, path: Path | None) -> None:
