@@ -29,7 +29,7 @@ from benchmarks.telemetry_load import HeadlessViewer
 def record_demo(path: Path, seconds: float, track_spec: str = "builtin:paperlike") -> Path:
     """Record `seconds` of the synthetic stream (wall-clock stamps ending now) to `path`."""
     from services.telemetry.recorder import Recorder
-    from services.telemetry.recording import open_segment
+    from services.telemetry.recording import open_segment, track_bounds
     from services.telemetry.synthetic import lap_stream
     from shared.config import RacestackConfig
     from shared.curvature import track_profile
@@ -39,7 +39,7 @@ def record_demo(path: Path, seconds: float, track_spec: str = "builtin:paperlike
 
     cfg = RacestackConfig()
     track = load_track(track_spec)
-    rec = open_segment(cfg.telemetry, path, "view-demo")
+    rec = open_segment(cfg.telemetry, path, "view-demo", track_bounds(track))
     recorder = Recorder(rec, cfg.telemetry)
     recorder.log_static(track, track_profile(track, cfg.curvature), {"car": "demo"})
     t0 = time.time() - seconds

@@ -165,9 +165,27 @@ def series_view(panel: Panel) -> rrb.TimeSeriesView:
     )
 
 
-def track_view() -> rrb.Spatial2DView:
-    """The map view: origin the root (so ``MAP_TO_VIEW_SCALE`` on ``world`` applies)."""
-    return rrb.Spatial2DView(origin="/", contents=[f"/{MAP_ENTITY}/**"], name="Track (north up)")
+#: Map bounds (x_min, x_max, y_min, y_max) [m] of the track the view opens on.
+Bounds = tuple[float, float, float, float]
+#: Margin around the track in the view it opens on [m].
+BOUNDS_MARGIN_M = 1.0
+
+
+def view_bounds(bounds: Bounds, margin_m: float = BOUNDS_MARGIN_M) -> rrb.VisualBounds2D:
+    """The track view's visual bounds of map bounds `bounds` plus `margin_m`, in the view's
+    (flipped) coordinates: map y in [y_min, y_max] is view y in [-y_max, -y_min]."""
+    x0, x1, y0, y1 = bounds
+    sy = MAP_TO_VIEW_SCALE[1]
+    ys = sorted((sy * y0, sy * y1))
+    return rrb.VisualBounds2D(x_range=(x0 - margin_m, x1 + margin_m),
+                              y_range=(ys[0] - margin_m, ys[1] + margin_m))
+
+
+def track_view(bounds: Bounds | None = None) -> rrb.Spatial2DView:
+    """The map view: origin the root (so ``MAP_TO_VIEW_SCALE`` on ``world`` applies),
+    opening on the track's `bounds` (None: fit everything, lidar points included)."""
+    return rrb.Spatial2DView(origin="/", contents=[f"/{MAP_ENTITY}/**"], name="Track (north up)",
+                             visual_bounds=view_bounds(bounds) if bounds else None)
 
 
 def event_views() -> tuple[rrb.TextLogView, rrb.TextLogView]:
@@ -184,8 +202,9 @@ def event_views() -> tuple[rrb.TextLogView, rrb.TextLogView]:
     return events, drops
 
 
-def default_blueprint() -> rrb.Blueprint:
-    """The default layout (see the module docstring)."""
+def default_blueprint(bounds: Bounds | None = None) -> rrb.Blueprint:
+    """The default layout (see the module docstring); the track view opens on the map
+    `bounds` (x_min, x_max, y_min, y_max) [m] of the track when given."""
     events, drops = event_views()
     now = rrb.TextDocumentView(origin=f"/{NOW_ENTITY}", name="Now")
     laps = rrb.Tabs(*(series_view(p) for p in LAP_TABS))
@@ -201,7 +220,7 @@ def default_blueprint() -> rrb.Blueprint:
     )
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(track_view(), bottom, row_shares=[3, 2]),
+            rrb.Vertical(track_view(bounds), bottom, row_shares=[3, 2]),
             right,
             column_shares=[3, 2],
         ),
@@ -210,10 +229,12 @@ def default_blueprint() -> rrb.Blueprint:
     )
 
 
-def save_blueprint(path: str | Path, app_id: str = "racestack") -> Path:
-    """Write the default layout to a ``.rbl`` file for application `app_id`; returns the path."""
+def save_blueprint(path: str | Path, app_id: str = "racestack",
+                   bounds: Bounds | None = None) -> Path:
+    """Write the default layout (track view on `bounds`) to a ``.rbl`` file for application
+    `app_id`; returns the path."""
     path = Path(path)
-    default_blueprint().save(app_id, str(path))
+    default_blueprint(bounds).save(app_id, str(path))
     return path
 
 

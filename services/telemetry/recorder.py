@@ -472,8 +472,8 @@ class Recorder:
         if now - self._last_batch_wall >= self.cfg.batch_interval_s or self.scalars.pending > 20000:
             self._last_batch_wall = now
             self.check_silence(now)
-            if self.last_stamp is not None:
-                for summary in self._drops.due(self._now_stamp()[1]):
+            if self.last_stamp is not None:  # windows close on message time, never ahead
+                for summary in self._drops.due(self.last_stamp[1]):
                     self._log_summary(summary)
             self.scalars.flush()
 

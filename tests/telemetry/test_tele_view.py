@@ -119,6 +119,16 @@ def test_view_map_is_drawn_north_up() -> None:
     assert signed_area_screen < 0
 
 
+def test_view_opens_on_the_track_in_flipped_coordinates() -> None:
+    vb = bp.view_bounds((-2.0, 10.0, 1.0, 5.0), margin_m=0.5)
+    rng = vb.range.as_arrow_array().to_pylist()[0]
+    assert rng["x_range"] == [-2.5, 10.5]
+    assert rng["y_range"] == [-5.5, -0.5]  # map y 1..5 is view y -5..-1
+    track = bp.track_view((-2.0, 10.0, 1.0, 5.0))
+    assert "VisualBounds2D" in track.properties
+    assert "VisualBounds2D" not in bp.track_view().properties
+
+
 def test_view_time_panel_follows_the_newest_data() -> None:
     tp = bp.default_blueprint().time_panel
     assert tp is not None
@@ -252,9 +262,13 @@ def test_shed_recorder_summarises_drop_lines_and_keeps_warnings() -> None:
             return lambda *a, **k: None
 
     sink = Sink()
-    r = Recorder(sink, TelemetrySettings(drop_summary_interval_s=10.0))  # type: ignore[arg-type]
     t0 = 1.7e9
+    ahead = [t0 + 1000.0]  # a wall clock far ahead of the stamps closes no window early
+    r = Recorder(sink, TelemetrySettings(drop_summary_interval_s=10.0),  # type: ignore[arg-type]
+                 clock=lambda: ahead[0])
     for k in range(25):
+        ahead[0] += 1.0
+        r.periodic()
         r.handle(EVENTS_LOG, LogEvent(
             stamp_s=t0 + k, level="info", source="planner",
             text=f"dropped 2 valid messages (total {2 * k + 2}): "
