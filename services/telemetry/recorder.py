@@ -8,18 +8,24 @@ smaller ones on ``sim_time`` (a duration), unless ``TelemetrySettings.timeline``
 
 Entity layout (units in the names or below):
 
-* static: ``world/track/{centerline,left,right}`` (line strips [m]), ``world/track/nsc``
-  (centreline points coloured by the NSC), ``meta/track`` (name, source, length_m),
+* static: ``world`` (``Transform3D`` scale (1, -1, 1): the map shown north up in the 2D
+  track view, see ``blueprint``), ``world/track/{centerline,left,right}`` (line strips
+  [m]), ``world/track/nsc`` (centreline points coloured by the NSC), ``meta/track`` (name,
+  source, length_m),
   ``meta/run`` (car, start time, timeline choice).
 * drawings (at most ``visual_max_hz`` per entity, styles static): ``world/car``
-  (the ``car_length_m`` x ``car_width_m`` footprint + heading arrow, from ``State``),
+  (strip 0 the ``car_length_m`` x ``car_width_m`` footprint outline, strip 1 the body: a
+  line along the car as wide as the car, filling the footprint; a heading arrow; from
+  ``State``),
   ``world/truth`` (simulator truth footprint), ``world/pose`` (localiser pose, drawn only
   while no ``State`` arrives),
   ``world/plan/horizon`` (predicted horizon, points coloured by planned speed),
-  ``world/car_beta`` (a disc at the car coloured by the NSC, labelled with beta and NSC),
+  ``world/car_beta`` (a halo under the car coloured by the NSC), ``now`` (a text of beta,
+  NSC, speed, lap, e_con, solver; at most ``NOW_MAX_HZ``),
   ``world/path/lap_<k>`` (driven path of lap k coloured by speed), ``world/scan`` (lidar
   points in the map frame, placed with the newest pose).
-* scalars: ``speed/{measured,commanded,odom,truth,progress}`` [m/s],
+* scalars (at most ``series_max_hz`` messages per key and second of message time, see
+  ``shedding.Decimator``; events never): ``speed/{measured,commanded,odom,truth,progress}`` [m/s],
   ``steering/{measured,commanded,odom,truth}`` [rad], ``track_error/{e_con,e_con_truth}``
   [m], ``beta/{beta,nsc}`` [-], ``solver/{solve_time_ms,status_code,iterations,
   consecutive_failures}`` (status code 0 solved, 1 fallback, 2 braking, 3 recovering),
@@ -29,7 +35,9 @@ Entity layout (units in the names or below):
   ``truth/{x_m,y_m,s_m,off_track,lap,slip_rad,yaw_rate_radps}``,
   ``telemetry/{queue_depth,dropped/<key>,rejected/<key>,seq_gaps/<key>}`` [messages].
 * text logs: ``events/lap`` (lap events, also as ``AnyValues`` fields for the report),
-  ``events/log/<source>`` (``LogEvent``), ``events/telemetry`` (stale input, solver
+  ``events/log/<source>`` (``LogEvent``; the by-design "overwritten" drop reports are logged
+  at debug level on ``events/drops/<source>`` and summarised here once per
+  ``drop_summary_interval_s``), ``events/telemetry`` (stale input, solver
   fallback, off track, rejected or dropped messages), ``events/sim_control``,
   ``events/teleport``.
 * ``plan/info``: ``AnyValues`` (method, status) whenever they change.
