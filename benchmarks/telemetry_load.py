@@ -13,12 +13,24 @@ logged, dropped by the telemetry queue, rejected, sequence gaps). Run from the p
 ``--pid PID --seconds S`` only samples an already running telemetry process (e.g. one
 started by ``racestack up``) for S seconds and publishes nothing.
 
+Load shedding (issue 25): ``--compare`` runs the replay twice, every message logged
+(``series_max_hz = 0``, as before the decimation) and decimated to the default
+``series_max_hz``, and prints CPU, the scalar samples sent per second (the log rate) and the
+delay from a message's stamp to its sending (``send_delay_ms``: series, batched every
+``batch_interval_s``; ``draw_delay_ms``: drawings, logged as they come). ``--serve`` also
+serves the live stream (what ``racestack up --serve`` costs); ``--viewer-lag`` (with
+``--serve``) connects a headless Rerun viewer to it (needs a Vulkan driver, e.g. Mesa's
+lavapipe, ``apt-get install mesa-vulkan-drivers``; a manual check, no test needs it) and
+samples once a second how far the viewer's time cursor (following the newest data) is behind
+the wall clock.
+
 Target (issue 5): under 20 % of one core, nothing dropped by the telemetry queue.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import signal
@@ -98,9 +110,96 @@ def cpu_summary(samples: list[float]) -> dict[str, float | int | None]:
             "p99": float(np.percentile(a, 99)), "max": float(a.max()), "mean": float(a.mean())}
 
 
+class HeadlessViewer:
+    """A headless Rerun viewer on loopback (``rerun --headless``, software rendering is
+    fine), driven by ``rerun.experimental.ViewerClient``: open recordings or a live stream,
+    save screenshots, sample how far its time cursor (following the newest data) is behind
+    the wall clock [s] once a second."""
+
+    def __init__(self, out: Path, window: str = "1600x1000") -> None:
+        from rerun.experimental import ViewerClient
+
+        self.port = free_loopback_port()
+        env = {**os.environ, "WGPU_BACKEND": os.environ.get("WGPU_BACKEND", "vulkan")}
+        self.log = open(out / "viewer.log", "wb")  # closed in stop()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "rerun", "--headless", "--bind", "127.0.0.1", "--port",
+             str(self.port), "--window-size", window, "--hide-welcome-screen"],
+            env=env, stdout=self.log, stderr=subprocess.STDOUT)
+        self.client: Any = None
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while self.client is None and time.monotonic() < deadline and self.proc.poll() is None:
+            try:
+                client = ViewerClient.connect(f"rerun+http://127.0.0.1:{self.port}/proxy")
+                client.get_state()
+                self.client = client
+            except Exception:
+                time.sleep(0.5)
+        if self.client is None:
+            self.stop()
+            raise RuntimeError(f"no headless viewer (see {out / 'viewer.log'})")
+        self.samples: list[float] = []
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def open(self, *urls: str, settle_s: float = 3.0) -> None:
+        """Open files / a live stream URL and wait until they are loaded (+ `settle_s`)."""
+        for url in urls:
+            self.client.open(url)
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while self.client.get_state().loading and time.monotonic() < deadline:
+            time.sleep(0.5)
+        time.sleep(settle_s)
+
+    def screenshot(self, path: Path) -> Path:
+        """Save the whole viewer as a PNG at `path`."""
+        self.client.save_screenshot(str(path))
+        return path
+
+    def sample_lag(self) -> None:
+        """Start sampling the lag of the ``wall_time`` cursor once a second."""
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(1.0):
+            try:
+                state = self.client.get_state()
+            except Exception:
+                continue
+            now = time.time()
+            for r in state.recordings:
+                if r.current_timeline == "wall_time" and r.current_time is not None:
+                    self.samples.append(now - r.current_time / 1e9)
+
+    def stop_sampling(self) -> None:
+        """Stop sampling the lag (the stream ended: the cursor stays at its last data)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+
+    def stop(self) -> list[float]:
+        """Stop sampling and the viewer (by its pid); returns the lags [s]."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=5)
+        self.log.close()
+        return self.samples
+
+
 def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
-               out: Path) -> dict[str, Any]:
-    """Start the telemetry, replay the stream, stop it; returns the figures."""
+               out: Path, telemetry_toml: str = "", serve: bool = False,
+               viewer_lag: bool = False, screenshot: Path | None = None) -> dict[str, Any]:
+    """Start the telemetry (with extra `[telemetry]` lines `telemetry_toml`, serving the live
+    stream with `serve`, a headless viewer on it with `viewer_lag`, saving `screenshot` at
+    the end of the replay), replay the stream, stop it; returns the figures."""
     from services.telemetry.synthetic import lap_stream, replay
     from shared.bus import Bus
     from shared.config import load_config
@@ -111,8 +210,8 @@ def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
     port = free_loopback_port()
     toml = out / "bench.toml"
     toml.write_text(f'[track]\nsource = "{track.source}"\n\n'
-                    f'[bus]\ncar = "bench"\nlisten = ["tcp/127.0.0.1:{port}"]\n',
-                    encoding="utf-8")
+                    f'[bus]\ncar = "bench"\nlisten = ["tcp/127.0.0.1:{port}"]\n\n'
+                    f"[telemetry]\n{telemetry_toml}\n", encoding="utf-8")
     cfg = load_config(toml)
     run_dir = out / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -121,10 +220,13 @@ def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
     os.environ.setdefault("XDG_CONFIG_HOME", env["XDG_CONFIG_HOME"])
     os.environ.setdefault("XDG_DATA_HOME", env["XDG_DATA_HOME"])
     log_path = out / "telemetry.log"
+    serve_port = free_loopback_port() if serve else None
+    viewer: HeadlessViewer | None = None
     with Bus(cfg.bus, "bench", listen_default=True) as hub, open(log_path, "wb") as log:
         proc = subprocess.Popen(
             [sys.executable, "-m", "services.telemetry", "--config", str(toml),
-             "--out", str(run_dir)],
+             "--out", str(run_dir),
+             *(["--serve", str(serve_port)] if serve_port is not None else [])],
             cwd=str(ROOT), env=env, stdout=log, stderr=subprocess.STDOUT,
         )
         try:
@@ -132,6 +234,10 @@ def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
                 raise RuntimeError("telemetry did not start:\n" + log_path.read_text())
             print(f"telemetry pid {proc.pid} up; replaying {laps:g} laps of {track.name} "
                   f"({duration_s:.1f} s) at the stack's rates ...", flush=True)
+            if viewer_lag and serve_port is not None:
+                viewer = HeadlessViewer(out)
+                viewer.open(f"rerun+http://127.0.0.1:{serve_port}/proxy", settle_s=0.0)
+                viewer.sample_lag()
             t0 = time.time() if stamps == "wall" else 100.0
             lag: list[float] = []
             start = time.monotonic()
@@ -145,9 +251,14 @@ def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
                           before_put=note_lag)
             wall = time.monotonic() - wall
             cpu = sampler.stop()
+            if viewer is not None:
+                viewer.stop_sampling()
             threads = thread_cpu(proc.pid)
             time.sleep(0.5)  # let the last messages arrive
+            if viewer is not None and screenshot is not None:
+                viewer.screenshot(screenshot)
         finally:
+            lags = viewer.stop() if viewer is not None else []
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
                 try:
@@ -176,6 +287,14 @@ def run_replay(track_spec: str, laps: float, speed_mps: float, stamps: str,
         "record_errors": stats.get("record_errors"),
         "top_threads_cpu_s": threads,
         "rrd_mb": sum(f.stat().st_size for f in segments) / 1e6 if segments else None,
+        "series_samples_sent": stats.get("series_samples_sent"),
+        "series_samples_per_s": (stats.get("series_samples_sent") or 0) / duration_s,
+        "messages_decimated": stats.get("messages_decimated"),
+        "drawings_per_s": (stats.get("drawings") or 0) / duration_s,
+        "send_delay_ms": stats.get("send_delay_ms"),
+        "draw_delay_ms": stats.get("draw_delay_ms"),
+        "viewer_lag_s": cpu_summary(lags) if viewer_lag else None,
+        "viewer_lag_samples": [round(x, 2) for x in lags] if viewer_lag else None,
         "exit_code": proc.returncode,
         "run_dir": str(run_dir),
     }
@@ -193,19 +312,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pid", type=int, help="only sample this running telemetry process")
     ap.add_argument("--seconds", type=float, default=60.0, help="sampling time with --pid")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON only")
+    ap.add_argument("--series-max-hz", type=float,
+                    help="[telemetry] series_max_hz of the run (default: the setting's)")
+    ap.add_argument("--compare", action="store_true",
+                    help="run twice: every message (series_max_hz = 0), then decimated")
+    ap.add_argument("--serve", action="store_true", help="also serve the live stream")
+    ap.add_argument("--viewer-lag", action="store_true",
+                    help="with --serve: a headless viewer on it, its lag behind the wall clock")
+    ap.add_argument("--screenshot", metavar="PNG",
+                    help="with --viewer-lag: save the live viewer at the end of the replay")
     args = ap.parse_args(argv)
+    if args.compare:
+        return compare(args)
     if args.pid:
         sampler = CpuSampler(args.pid).start()
         time.sleep(args.seconds)
         res: dict[str, Any] = {"pid": args.pid,
                                "cpu_percent_of_one_core": cpu_summary(sampler.stop())}
-    elif args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        res = run_replay(args.track, args.laps, args.speed, args.stamps, out)
     else:
-        with tempfile.TemporaryDirectory(prefix="telemetry-load-") as tmp:
-            res = run_replay(args.track, args.laps, args.speed, args.stamps, Path(tmp))
+        extra = ("" if args.series_max_hz is None
+                 else f"series_max_hz = {args.series_max_hz}")
+        res = _replay_in(args, extra)
     cpu = res["cpu_percent_of_one_core"]
     print(json.dumps(res, indent=2))
     if not args.json:
@@ -222,6 +349,89 @@ def main(argv: list[str] | None = None) -> int:
                   f"recording {res['rrd_mb']:.1f} MB")
     ok = bool(cpu["n"]) and cpu["median"] < 20.0 and not res.get("dropped_by_queue")
     return 0 if ok else 1
+
+
+def _replay_in(args: argparse.Namespace, telemetry_toml: str) -> dict[str, Any]:
+    """``run_replay`` in ``--out`` (or a temporary folder, deleted)."""
+    run = functools.partial(run_replay, args.track, args.laps, args.speed, args.stamps,
+                            telemetry_toml=telemetry_toml, serve=args.serve,
+                            viewer_lag=args.viewer_lag,
+                            screenshot=Path(args.screenshot) if args.screenshot else None)
+    if args.out:
+        out = Path(args.out) / (telemetry_toml.replace(" ", "").replace("=", "-") or "default")
+        out.mkdir(parents=True, exist_ok=True)
+        return run(out)
+    with tempfile.TemporaryDirectory(prefix="telemetry-load-") as tmp:
+        return run(Path(tmp))
+
+
+def _fmt(d: dict[str, Any] | None, key: str) -> str:
+    v = (d or {}).get(key)
+    return "-" if v is None else f"{v:.1f}"
+
+
+def recorder_cost(series_max_hz: float, seconds: float = 20.0, repeats: int = 3,
+                  track_spec: str = "builtin:paperlike") -> float:
+    """CPU [% of one core] of the logging thread alone (``Recorder.handle`` / ``periodic``
+    into a file) for the synthetic stream at the stack's rates: the median of `repeats`
+    runs of `seconds` of stream (no bus, no decoding; less noisy than the process)."""
+    import rerun as rr
+
+    from services.telemetry.recorder import Recorder
+    from services.telemetry.synthetic import lap_stream
+    from shared.config.telemetry import TelemetrySettings
+    from shared.track import load_track
+
+    track = load_track(track_spec)
+    msgs = list(lap_stream(track, seconds, t0_s=1.7e9, speed_mps=3.3))
+    shares = []
+    with tempfile.TemporaryDirectory(prefix="telemetry-cost-") as tmp:
+        for k in range(repeats):
+            rec = rr.RecordingStream("bench", recording_id=f"cost-{k}")
+            rec.set_sinks(rr.FileSink(str(Path(tmp) / f"{k}.rrd")))
+            recorder = Recorder(rec, TelemetrySettings(series_max_hz=series_max_hz))
+            recorder.log_static(track)
+            cpu = time.process_time()
+            for t, suffix, msg in msgs:
+                recorder.handle(suffix, msg, 1.7e9 + t + 0.002)
+                recorder.periodic(1.7e9 + t)
+            recorder.close()
+            shares.append(100.0 * (time.process_time() - cpu) / seconds)
+            rec.flush(timeout_sec=5.0)
+            rec.disconnect()
+    return float(np.median(shares))
+
+
+def compare(args: argparse.Namespace) -> int:
+    """Every message logged vs decimated: one table of CPU, log rate and delays."""
+    from shared.config.telemetry import TelemetrySettings
+
+    default_hz = TelemetrySettings().series_max_hz
+    for hz in (0.0, default_hz):
+        print(f"logging thread alone, series_max_hz = {hz:g}: {recorder_cost(hz):.1f} % of "
+              "one core (median of 3 x 20 s of stream)", flush=True)
+    rows = []
+    for label, extra in (("every message (series_max_hz = 0)", "series_max_hz = 0"),
+                         ("decimated (default series_max_hz)", "")):
+        res = _replay_in(args, extra)
+        rows.append((label, res))
+        keys = ("cpu_percent_of_one_core", "series_samples_per_s", "send_delay_ms",
+                "draw_delay_ms", "viewer_lag_s", "viewer_lag_samples", "dropped_by_queue",
+                "rrd_mb", "top_threads_cpu_s")
+        print(f"{label}: {json.dumps({k: res[k] for k in keys})}", flush=True)
+    print("\n| run | CPU median / p99 [% of a core] | series samples/s | drawings/s | "
+          "send delay median / p99 [ms] | draw delay median / p99 [ms] | viewer lag median / "
+          "max [s] | recording [MB] | dropped |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for label, res in rows:
+        cpu, sd, dd = res["cpu_percent_of_one_core"], res["send_delay_ms"], res["draw_delay_ms"]
+        lag = res["viewer_lag_s"]
+        print(f"| {label} | {_fmt(cpu, 'median')} / {_fmt(cpu, 'p99')} | "
+              f"{res['series_samples_per_s']:.0f} | {res['drawings_per_s']:.0f} | "
+              f"{_fmt(sd, 'median')} / {_fmt(sd, 'p99')} | {_fmt(dd, 'median')} / "
+              f"{_fmt(dd, 'p99')} | {_fmt(lag, 'median')} / {_fmt(lag, 'max')} | "
+              f"{res['rrd_mb']:.1f} | {sum((res['dropped_by_queue'] or {}).values())} |")
+    return 0
 
 
 if __name__ == "__main__":

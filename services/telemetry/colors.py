@@ -20,9 +20,12 @@ _ANCHORS = np.array(
 _POS = np.linspace(0.0, 1.0, len(_ANCHORS))
 
 #: Fixed colours (RGB) of the drawings.
-TRACK_EDGE = (40, 40, 40)
-CENTRELINE = (150, 150, 150)
+#: Track borders: light on the viewer's black background.
+TRACK_EDGE = (215, 215, 215)
+CENTRELINE = (110, 110, 110)
 CAR = (30, 110, 255)
+#: The car's footprint outline and heading arrow.
+CAR_OUTLINE = (255, 255, 255)
 TRUTH = (160, 160, 160)
 HORIZON = (255, 120, 0)
 SCAN = (200, 60, 200)

@@ -2,7 +2,9 @@
 
 ``Inbox.put`` runs on a Zenoh thread: it only appends under a lock and returns (it never
 waits for the logging thread). Data messages go to a bounded FIFO that drops the OLDEST
-message when full and counts the drop per key; lap, log and simulator-control events go to a
+message when full and counts the drop per key (and, with ``max_age_s``, drops data that
+waited longer than that: a logging thread that fell behind catches up instead of lagging);
+lap, log and simulator-control events go to a
 separate FIFO that is never trimmed by that policy (only a safety cap far above any real
 event rate protects the memory; overflowing it is counted too). ``get_batch`` returns the
 messages of both in arrival order.
@@ -42,6 +44,8 @@ class Inbox:
         event_max: safety cap of the event FIFO [messages].
         event_suffixes: key suffixes treated as events.
         clock: wall clock [s] used to stamp arrivals.
+        max_age_s: data messages older than this at ``get_batch`` are dropped and counted
+            (None: never by age).
     """
 
     def __init__(
@@ -50,9 +54,13 @@ class Inbox:
         event_max: int = 100_000,
         event_suffixes: frozenset[str] = EVENT_SUFFIXES,
         clock: Callable[[], float] = time.time,
+        max_age_s: float | None = None,
     ) -> None:
         if maxlen < 1 or event_max < 1:
             raise ValueError("queue sizes must be >= 1")
+        if max_age_s is not None and max_age_s <= 0.0:
+            raise ValueError("max_age_s must be > 0")
+        self._max_age_s = max_age_s
         self._cond = threading.Condition()
         self._data: collections.deque[Item] = collections.deque()
         self._events: collections.deque[Item] = collections.deque()
@@ -92,6 +100,10 @@ class Inbox:
                 self._cond.wait(timeout=max(0.0, timeout_s))
             events = list(self._events)
             self._events.clear()
+            if self._max_age_s is not None and self._data:
+                oldest = self._clock() - self._max_age_s
+                while self._data and self._data[0].recv_wall_s < oldest:
+                    self._dropped[self._data.popleft().suffix] += 1
             n = min(max_items, len(self._data))
             data = [self._data.popleft() for _ in range(n)]
         if not events:

@@ -8,18 +8,24 @@ smaller ones on ``sim_time`` (a duration), unless ``TelemetrySettings.timeline``
 
 Entity layout (units in the names or below):
 
-* static: ``world/track/{centerline,left,right}`` (line strips [m]), ``world/track/nsc``
-  (centreline points coloured by the NSC), ``meta/track`` (name, source, length_m),
+* static: ``world`` (``Transform3D`` scale (1, -1, 1): the map shown north up in the 2D
+  track view, see ``blueprint``), ``world/track/{centerline,left,right}`` (line strips
+  [m]), ``world/track/nsc`` (centreline points coloured by the NSC), ``meta/track`` (name,
+  source, length_m),
   ``meta/run`` (car, start time, timeline choice).
 * drawings (at most ``visual_max_hz`` per entity, styles static): ``world/car``
-  (the ``car_length_m`` x ``car_width_m`` footprint + heading arrow, from ``State``),
+  (strip 0 the ``car_length_m`` x ``car_width_m`` footprint outline, strip 1 the body: a
+  line along the car as wide as the car, filling the footprint; a heading arrow; from
+  ``State``),
   ``world/truth`` (simulator truth footprint), ``world/pose`` (localiser pose, drawn only
   while no ``State`` arrives),
   ``world/plan/horizon`` (predicted horizon, points coloured by planned speed),
-  ``world/car_beta`` (a disc at the car coloured by the NSC, labelled with beta and NSC),
+  ``world/car_beta`` (a halo under the car coloured by the NSC), ``now`` (a text of beta,
+  NSC, speed, lap, e_con, solver; at most ``NOW_MAX_HZ``),
   ``world/path/lap_<k>`` (driven path of lap k coloured by speed), ``world/scan`` (lidar
   points in the map frame, placed with the newest pose).
-* scalars: ``speed/{measured,commanded,odom,truth,progress}`` [m/s],
+* scalars (at most ``series_max_hz`` messages per key and second of message time, see
+  ``shedding.Decimator``; events never): ``speed/{measured,commanded,odom,truth,progress}`` [m/s],
   ``steering/{measured,commanded,odom,truth}`` [rad], ``track_error/{e_con,e_con_truth}``
   [m], ``beta/{beta,nsc}`` [-], ``solver/{solve_time_ms,status_code,iterations,
   consecutive_failures}`` (status code 0 solved, 1 fallback, 2 braking, 3 recovering),
@@ -29,7 +35,9 @@ Entity layout (units in the names or below):
   ``truth/{x_m,y_m,s_m,off_track,lap,slip_rad,yaw_rate_radps}``,
   ``telemetry/{queue_depth,dropped/<key>,rejected/<key>,seq_gaps/<key>}`` [messages].
 * text logs: ``events/lap`` (lap events, also as ``AnyValues`` fields for the report),
-  ``events/log/<source>`` (``LogEvent``), ``events/telemetry`` (stale input, solver
+  ``events/log/<source>`` (``LogEvent``; the by-design "overwritten" drop reports are logged
+  at debug level on ``events/drops/<source>`` and summarised here once per
+  ``drop_summary_interval_s``), ``events/telemetry`` (stale input, solver
   fallback, off track, rejected or dropped messages), ``events/sim_control``,
   ``events/teleport``.
 * ``plan/info``: ``AnyValues`` (method, status) whenever they change.
@@ -42,6 +50,7 @@ the best case.
 
 from __future__ import annotations
 
+import collections
 import math
 import re
 import time
@@ -51,7 +60,10 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from services.telemetry import blueprint as layout
 from services.telemetry import colors
+from services.telemetry.inbox import EVENT_SUFFIXES
+from services.telemetry.shedding import Decimator, DropSummary, Summary, parse_overwritten_drops
 from shared import keys
 from shared.config.telemetry import TelemetrySettings
 from shared.curvature import CurvatureProfile
@@ -85,6 +97,10 @@ from shared.track import Track
 WALL_CLOCK_MIN_S = 1e9
 SIM_TIME = "sim_time"
 WALL_TIME = "wall_time"
+#: Send delays kept for the statistics (the newest samples) [samples].
+DELAY_SAMPLES = 100_000
+#: Most "Now" panel updates per second of message time [Hz].
+NOW_MAX_HZ = 5.0
 #: ``solver/status_code`` of each ``Plan.status``.
 STATUS_CODES = {
     PlanStatusName.SOLVED: 0,
@@ -121,6 +137,15 @@ def timeline_of(stamp_s: float, choice: str = "auto") -> str:
     return choice
 
 
+def car_body(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
+    """(2, 2) axis [m] of the car's body, drawn as a line `width` wide with round ends: it
+    fills the `length` x `width` footprint centred at (x, y), heading `yaw`."""
+    half = max(0.0, 0.5 * (length - width))
+    d = np.array([math.cos(yaw), math.sin(yaw)]) * half
+    c = np.array([x, y])
+    return np.stack([c - d, c + d])
+
+
 def footprint(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
     """Closed (5, 2) outline [m] of a `length` x `width` box centred at (x, y), heading yaw."""
     c, s = math.cos(yaw), math.sin(yaw)
@@ -130,6 +155,17 @@ def footprint(x: float, y: float, yaw: float, length: float, width: float) -> np
     return local @ rot.T + np.array([x, y])
 
 
+def now_text(beta: float, nsc: float | None, plan: Plan, lap: int,
+             speed_mps: float | None) -> str:
+    """The "Now" panel: beta and NSC at the car, speed, lap, contour error, solver."""
+    lines = [f"beta {beta:.2f}" + (f"   NSC {nsc:.2f}" if nsc is not None else "   NSC -")]
+    v = f"{speed_mps:.2f} m/s" if speed_mps is not None else "-"
+    lines.append(f"v {v}   lap {lap}")
+    lines.append(f"e_con {plan.e_con_m:+.3f} m   s {plan.s_m:.1f} m")
+    lines.append(f"{plan.method} {plan.status} {plan.solve_time_ms:.1f} ms")
+    return "\n".join(lines)
+
+
 class ScalarBatcher:
     """Buffers scalar samples per (entity, timeline) and sends them as columns.
 
@@ -137,13 +173,22 @@ class ScalarBatcher:
     series cost almost nothing per message.
     """
 
-    def __init__(self, rec: rr.RecordingStream) -> None:
+    def __init__(self, rec: rr.RecordingStream, clock: Callable[[], float] = time.time) -> None:
         self._rec = rec
+        self._clock = clock
         self._buf: dict[tuple[str, str], tuple[list[float], list[float]]] = {}
         self.pending = 0  #: samples buffered
+        self.muted = False  #: True while the message being handled is decimated away
+        self.sent = 0  #: samples sent so far
+        #: send delay [s] (wall clock at the send - the sample's ``wall_time`` stamp) of the
+        #: most recent samples sent
+        self.delays_s: collections.deque[float] = collections.deque(maxlen=DELAY_SAMPLES)
 
     def add(self, entity: str, timeline: str, t_s: float, value: float) -> None:
-        """Buffer one sample: `value` of `entity` at time `t_s` [s] on `timeline`."""
+        """Buffer one sample: `value` of `entity` at time `t_s` [s] on `timeline` (ignored
+        while ``muted``)."""
+        if self.muted:
+            return
         entry = self._buf.get((entity, timeline))
         if entry is None:
             entry = self._buf[(entity, timeline)] = ([], [])
@@ -151,13 +196,22 @@ class ScalarBatcher:
         entry[1].append(value)
         self.pending += 1
 
+    def rebind(self, rec: rr.RecordingStream) -> None:
+        """Send what is buffered, then go on into `rec` (the counters carry on)."""
+        self.flush()
+        self._rec = rec
+
     def flush(self) -> None:
         """Send every buffered series (one chunk per entity and timeline)."""
         if not self.pending:
             return
         buf, self._buf, self.pending = self._buf, {}, 0
+        now = self._clock()
         for (entity, timeline), (times, values) in buf.items():
             t = np.asarray(times, dtype=np.float64)
+            self.sent += t.size
+            if timeline == WALL_TIME:
+                self.delays_s.extend((now - t).tolist())
             index = (
                 rr.TimeColumn(timeline, timestamp=t)
                 if timeline == WALL_TIME
@@ -190,7 +244,13 @@ class Recorder:
         self.rec = rec
         self.cfg = settings or TelemetrySettings()
         self._clock = clock
-        self.scalars = ScalarBatcher(rec)
+        self.scalars = ScalarBatcher(rec, clock)
+        self._decimator = Decimator(self.cfg.series_max_hz)
+        self._drops = DropSummary(self.cfg.drop_summary_interval_s)
+        self._styled: set[str] = set()  # latency entities whose style is logged
+        self.drawn = 0  #: drawings logged (car, truth, pose, horizon, scan)
+        #: delay [s] from a drawing's ``wall_time`` stamp to its logging (newest ones)
+        self.draw_delays_s: collections.deque[float] = collections.deque(maxlen=DELAY_SAMPLES)
         self._warn_limits: dict[str, RateLimiter] = {}
         self._profile: CurvatureProfile | None = None
         self._timeline: str | None = None  # the timeline set on the stream now
@@ -204,6 +264,7 @@ class Recorder:
         self._silent: set[str] = set()
         # state of the drawings
         self._pose_xyyaw: tuple[float, float, float] | None = None
+        self._speed_now: float | None = None  # newest State (else truth) speed [m/s]
         self._lap = 0
         self._path: list[tuple[float, float, float]] = []
         self._path_stride = 1
@@ -250,11 +311,11 @@ class Recorder:
         """Go on logging into `rec` (the same stream, now writing the next segment, or
         another one): the buffered series are sent first; then the styles and the static
         data (track, run information) are logged again, so every segment holds them."""
-        self.scalars.flush()
+        self.scalars.rebind(rec)
         self.rec = rec
-        self.scalars = ScalarBatcher(rec)
         self._timeline = None
         self._path_entities = set()
+        self._styled = set()
         self._plan_info = None
         self._prepare_stream()
         if self._static is not None:
@@ -264,13 +325,20 @@ class Recorder:
         """Colours, radii and draw order of the drawings, logged once as static data (each
         tick then sends only its geometry, which is what costs)."""
         rec = self.rec
+        # the map frame shown north up (a 2D view draws +y down): see blueprint.py
+        rec.log(layout.MAP_ENTITY, rr.Transform3D(scale=layout.MAP_TO_VIEW_SCALE), static=True)
+        body_r = 0.5 * self.cfg.car_width_m
         styles: dict[str, list[Any]] = {
+            # strip 0: the footprint outline (UI points wide, visible at any zoom);
+            # strip 1: the body, a line along the car as wide as the car (the footprint filled)
             "world/car": [
-                rr.LineStrips2D.from_fields(colors=[colors.CAR], radii=[0.015], draw_order=10.0),
-                rr.Arrows2D.from_fields(colors=[colors.CAR], radii=[0.012], draw_order=10.0),
+                rr.LineStrips2D.from_fields(colors=[colors.CAR_OUTLINE, colors.CAR],
+                                            radii=[-1.5, body_r], draw_order=30.0),
+                rr.Arrows2D.from_fields(colors=[colors.CAR_OUTLINE], radii=[-2.0],
+                                        draw_order=31.0),
             ],
-            "world/truth": [rr.LineStrips2D.from_fields(colors=[colors.TRUTH], radii=[0.008],
-                                                        draw_order=9.0)],
+            "world/truth": [rr.LineStrips2D.from_fields(colors=[colors.TRUTH], radii=[-1.0],
+                                                        draw_order=29.0)],
             "world/pose": [rr.Points2D.from_fields(colors=[colors.TRUTH], radii=[0.05],
                                                    draw_order=4.0)],
             "world/plan/horizon": [
@@ -278,8 +346,9 @@ class Recorder:
                                             draw_order=20.0),
                 rr.Points2D.from_fields(radii=[0.035], draw_order=21.0),
             ],
-            "world/car_beta": [rr.Points2D.from_fields(radii=[0.12], show_labels=True,
-                                                       draw_order=5.0)],
+            # a halo under the car coloured by the NSC (its numbers are in the Now panel)
+            "world/car_beta": [rr.Points2D.from_fields(
+                radii=[0.5 * self.cfg.car_length_m + 0.1], show_labels=False, draw_order=8.0)],
             "world/scan": [rr.Points2D.from_fields(colors=[colors.SCAN], radii=[0.015],
                                                    draw_order=3.0)],
         }
@@ -300,9 +369,9 @@ class Recorder:
         self._static = (track, profile, meta)
         if track is not None:
             for name, pts, color, width in (
-                ("centerline", track.xy, colors.CENTRELINE, 0.01),
-                ("left", track.left_boundary, colors.TRACK_EDGE, 0.03),
-                ("right", track.right_boundary, colors.TRACK_EDGE, 0.03),
+                ("centerline", track.xy, colors.CENTRELINE, -1.0),
+                ("left", track.left_boundary, colors.TRACK_EDGE, -1.5),
+                ("right", track.right_boundary, colors.TRACK_EDGE, -1.5),
             ):
                 closed = np.vstack([pts, pts[:1]])
                 rec.log(
@@ -313,7 +382,7 @@ class Recorder:
             if profile is not None:
                 rec.log(
                     "world/track/nsc",
-                    rr.Points2D(track.xy, colors=colors.ramp(profile.nsc), radii=0.02,
+                    rr.Points2D(track.xy, colors=colors.ramp(profile.nsc), radii=-2.0,
                                 draw_order=2.0),
                     static=True,
                 )
@@ -329,31 +398,8 @@ class Recorder:
             )
         if meta:
             rec.log("meta/run", rr.AnyValues(**dict(meta)), static=True)
-        styles = {
-            "speed/measured": ("measured", (30, 110, 255)),
-            "speed/commanded": ("commanded", (255, 120, 0)),
-            "speed/odom": ("odometry", (0, 170, 120)),
-            "speed/truth": ("truth", (150, 150, 150)),
-            "speed/progress": ("progress v_p", (200, 40, 200)),
-            "steering/measured": ("measured", (30, 110, 255)),
-            "steering/commanded": ("commanded", (255, 120, 0)),
-            "steering/odom": ("odometry", (0, 170, 120)),
-            "steering/truth": ("truth", (150, 150, 150)),
-            "track_error/e_con": ("e_con (plan)", (220, 40, 40)),
-            "track_error/e_con_truth": ("e_con (truth)", (150, 150, 150)),
-            "beta/beta": ("beta", (0, 160, 60)),
-            "beta/nsc": ("NSC", (120, 60, 200)),
-            "solver/solve_time_ms": ("solve time [ms]", (220, 40, 40)),
-            "solver/status_code": (
-                "status (0 ok, 1 fallback, 2 braking, 3 recovering)",
-                (40, 40, 40),
-            ),
-            "laps/lap_time_s": ("lap time [s]", (30, 110, 255)),
-        }
-        for entity, (name, color) in styles.items():
-            rec.log(entity, rr.SeriesLines(names=name, colors=[color]), static=True)
-        for entity in ("laps/lap_time_s", "laps/mean_speed_mps", "solver/status_code"):
-            rec.log(entity, rr.SeriesPoints(markers="circle", marker_sizes=4.0), static=True)
+        for entity, style in layout.SERIES_STYLES.items():
+            rec.log(entity, _series_style(style), static=True)
 
     # ------------------------------------------------------------------ time
     def _set_time(self, timeline: str, t_s: float) -> None:
@@ -384,6 +430,9 @@ class Recorder:
         if last is not None and 0.0 <= t - last < 0.9 / max_hz:
             return False
         self._last_visual[entity] = t
+        self.drawn += 1
+        if t >= WALL_CLOCK_MIN_S:
+            self.draw_delays_s.append(self._recv_wall - t)
         return True
 
     # ------------------------------------------------------------------ entry points
@@ -406,13 +455,24 @@ class Recorder:
         if suffix in self._silent:
             self._silent.discard(suffix)
             self.event("telemetry", _INFO, f"{suffix}: messages again (input no longer stale)")
-        self._latency(suffix, tl, t, recv_wall_s)
+        # high-rate keys: their scalar samples at most series_max_hz (events, drawings and
+        # the driven path are not affected)
+        self.scalars.muted = (suffix not in EVENT_SUFFIXES
+                              and not self._decimator.due(suffix, t))
         try:
+            self._latency(suffix, tl, t, recv_wall_s)
             handler(msg, tl, t, recv_wall_s)
         except Exception as exc:
             self.errors += 1
             self.warn("record_error", f"could not log a {type(msg).__name__} on {suffix}: "
                       f"{type(exc).__name__}: {exc}")
+        finally:
+            self.scalars.muted = False
+
+    @property
+    def shed(self) -> int:
+        """Messages whose scalar samples were left out by the decimation (``series_max_hz``)."""
+        return self._decimator.skipped
 
     def periodic(self, wall_now: float | None = None) -> None:
         """Housekeeping (call often): send the scalar batches when due, report silence."""
@@ -420,6 +480,9 @@ class Recorder:
         if now - self._last_batch_wall >= self.cfg.batch_interval_s or self.scalars.pending > 20000:
             self._last_batch_wall = now
             self.check_silence(now)
+            if self.last_stamp is not None:  # windows close on message time, never ahead
+                for summary in self._drops.due(self.last_stamp[1]):
+                    self._log_summary(summary)
             self.scalars.flush()
 
     def flush(self) -> None:
@@ -483,7 +546,12 @@ class Recorder:
 
     def note_queue(self, depth: int, dropped: Mapping[str, int],
                    seq_gaps: Mapping[str, int] | None = None) -> None:
-        """Report the inbox: queue depth, drops per key (cumulative) and sequence gaps."""
+        """Report the inbox: queue depth, drops per key (cumulative) and sequence gaps.
+
+        Nothing is logged before the first message: the recording's timeline starts with
+        the stack, not with the telemetry's own counters."""
+        if self.last_stamp is None and not dropped:
+            return
         tl, t = self._now_stamp()
         self._scalar("telemetry/queue_depth", tl, t, depth)
         for suffix, n in (seq_gaps or {}).items():
@@ -502,20 +570,31 @@ class Recorder:
             self._dropped_seen = dict(dropped)
 
     def close(self) -> None:
-        """Draw the last path points and send every buffered series."""
+        """Draw the last path points, log the open drop summaries, send every buffered
+        series."""
         if self._path:
             self._log_path()
+        for summary in self._drops.flush():
+            self._log_summary(summary)
         self.scalars.flush()
 
     # ------------------------------------------------------------------ per key
     def _latency(self, suffix: str, tl: str, t: float, recv: float) -> None:
+        if self.scalars.muted:
+            return
+        entity = f"latency/{flat(suffix)}"
+        if entity not in self._styled:
+            self._styled.add(entity)
+            self.rec.log(entity, _series_style(layout.SeriesStyle(
+                flat(suffix), layout.LATENCY_STYLE.color, layout.LATENCY_STYLE.width,
+                points=True)), static=True)
         offset = recv - t
         if tl == SIM_TIME:
             best = self._min_offset.get(suffix)
             if best is None or offset < best:
                 best = self._min_offset[suffix] = offset
             offset -= best
-        self.scalars.add(f"latency/{flat(suffix)}", tl, t, offset * 1e3)
+        self.scalars.add(entity, tl, t, offset * 1e3)
 
     def _pose(self, m: Pose, tl: str, t: float, _recv: float) -> None:
         self._pose_xyyaw = (m.x_m, m.y_m, m.yaw_rad)
@@ -569,6 +648,7 @@ class Recorder:
         age = t - m.source_stamp_s
         add("health/state_age_ms", tl, t, age * 1e3)
         self._pose_xyyaw = (m.x_m, m.y_m, m.yaw_rad)
+        self._speed_now = m.speed_mps
         if m.valid != self._state_valid:
             self._state_valid = m.valid
             if m.valid:
@@ -585,13 +665,15 @@ class Recorder:
         if self._visual_due("world/car", t, self.cfg.visual_max_hz):
             self._set_time(tl, t)
             c = self.cfg
+            box = footprint(m.x_m, m.y_m, m.yaw_rad, c.car_length_m, c.car_width_m)
             self.rec.log(
                 "world/car",
-                rr.LineStrips2D.from_fields(strips=[footprint(
+                rr.LineStrips2D.from_fields(strips=[box, car_body(
                     m.x_m, m.y_m, m.yaw_rad, c.car_length_m, c.car_width_m)]),
                 rr.Arrows2D.from_fields(
                     origins=[[m.x_m, m.y_m]],
-                    vectors=[[0.5 * math.cos(m.yaw_rad), 0.5 * math.sin(m.yaw_rad)]]),
+                    vectors=[[1.2 * c.car_length_m * math.cos(m.yaw_rad),
+                              1.2 * c.car_length_m * math.sin(m.yaw_rad)]]),
             )
 
     def _cmd(self, m: DriveCmd, tl: str, t: float, _recv: float) -> None:
@@ -636,13 +718,16 @@ class Recorder:
                 rr.Points2D.from_fields(
                     positions=xy, colors=colors.ramp(v, 0.0, self.cfg.speed_color_max_mps)),
             )
-            label = f"beta {beta:.2f}" + (f"  NSC {nsc:.2f}" if nsc is not None else "")
             self.rec.log(
                 "world/car_beta",
                 rr.Points2D.from_fields(
-                    positions=xy[:1], labels=[label],
+                    positions=xy[:1],
                     colors=colors.ramp(nsc if nsc is not None else 1.0 - beta)),
             )
+        if self._visual_due(layout.NOW_ENTITY, t, NOW_MAX_HZ):
+            self._set_time(tl, t)
+            self.rec.log(layout.NOW_ENTITY, rr.TextDocument(now_text(
+                beta, nsc, m, self._lap, self._speed_now)))
 
     def _lap_event(self, m: LapEvent, tl: str, t: float, _recv: float) -> None:
         if m.kind == LapKindName.LAP:
@@ -713,6 +798,7 @@ class Recorder:
                 self.event("telemetry", _INFO, "back on track", (tl, t))
         self._pose_xyyaw = (m.x_m, m.y_m, m.yaw_rad)
         if self._path_from_truth:
+            self._speed_now = m.speed_mps
             self._path_add(m.x_m, m.y_m, m.speed_mps, tl, t)
         if self._visual_due("world/truth", t, self.cfg.visual_max_hz):
             self._set_time(tl, t)
@@ -726,8 +812,23 @@ class Recorder:
     def _log_event(self, m: LogEvent, tl: str, t: float, _recv: float) -> None:
         source = _UNSAFE.sub("_", m.source) or "unknown"
         self._set_time(tl, t)
-        self.rec.log(f"events/log/{source}", rr.TextLog(f"[{m.source}] {m.text}",
-                                                        level=_LEVELS[m.level]))
+        counts = parse_overwritten_drops(m.text) if m.level == _INFO else None
+        if counts is None:
+            self.rec.log(f"events/log/{source}", rr.TextLog(f"[{m.source}] {m.text}",
+                                                            level=_LEVELS[m.level]))
+            return
+        # a by-design drop report: raw at debug level beside the event log, summarised in it
+        self.rec.log(f"{layout.DROPS_ENTITY}/{source}",
+                     rr.TextLog(f"[{m.source}] {m.text}", level=rr.TextLogLevel.DEBUG))
+        summary = self._drops.add(m.source, t, counts)
+        if summary is not None:
+            self._log_summary(summary)
+
+    def _log_summary(self, summary: Summary) -> None:
+        """One summary of a source's overwritten-drop reports in the event log."""
+        source = _UNSAFE.sub("_", summary.source) or "unknown"
+        stamp = (timeline_of(summary.end_s, self.cfg.timeline), summary.end_s)
+        self.event("log", _INFO, summary.text(), stamp, entity=f"events/log/{source}")
 
     def _sim_control(self, m: SimControl, tl: str, t: float, _recv: float) -> None:
         self.event("sim_control", _INFO, f"simulator {m.action} requested", (tl, t))
@@ -765,6 +866,14 @@ class Recorder:
                 positions=p[:, :2],
                 colors=colors.ramp(p[:, 2], 0.0, self.cfg.speed_color_max_mps)),
         )
+
+
+def _series_style(style: layout.SeriesStyle) -> Any:
+    """The static ``SeriesLines`` / ``SeriesPoints`` of a scalar entity."""
+    if style.points:
+        return rr.SeriesPoints(names=style.name or None, colors=[style.color], markers="circle",
+                               marker_sizes=style.width)
+    return rr.SeriesLines(names=style.name or None, colors=[style.color], widths=style.width)
 
 
 def _nan(v: float | None) -> float:

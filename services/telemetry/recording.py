@@ -38,21 +38,22 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rerun as rr
 
-from services.telemetry.blueprint import default_blueprint, save_blueprint
+from services.telemetry.blueprint import Bounds, default_blueprint, save_blueprint
 from services.telemetry.inbox import Inbox
 from services.telemetry.recorder import Recorder
 from shared.config import ConfigError, RacestackConfig
 from shared.config.telemetry import TelemetrySettings
 from shared.curvature import track_profile
 from shared.net import free_loopback_port
-from shared.track import load_track
+from shared.track import Track, load_track
 
 log = logging.getLogger(__name__)
 #: Stem of the recording's segments inside the run folder (``telemetry.0000.rrd``, ...).
@@ -143,10 +144,20 @@ def spawn_viewer(url: str) -> subprocess.Popen[bytes] | None:
     )
 
 
-def open_segment(settings: TelemetrySettings, path: Path, recording_id: str) -> rr.RecordingStream:
-    """A recording stream writing its first segment file, `path`, with the default layout."""
+def track_bounds(track: Track) -> Bounds:
+    """(x_min, x_max, y_min, y_max) [m] of the track's boundaries in the map frame."""
+    pts = np.vstack([track.left_boundary, track.right_boundary])
+    x0, y0 = pts.min(axis=0)
+    x1, y1 = pts.max(axis=0)
+    return float(x0), float(x1), float(y0), float(y1)
+
+
+def open_segment(settings: TelemetrySettings, path: Path, recording_id: str,
+                 bounds: Bounds | None = None) -> rr.RecordingStream:
+    """A recording stream writing its first segment file, `path`, with the default layout
+    (the track view on the map `bounds`, see ``blueprint.default_blueprint``)."""
     rec = rr.RecordingStream(settings.app_id, recording_id=recording_id)
-    rec.set_sinks(rr.FileSink(str(path)), default_blueprint=default_blueprint())
+    rec.set_sinks(rr.FileSink(str(path)), default_blueprint=default_blueprint(bounds))
     return rec
 
 
@@ -160,14 +171,15 @@ def switch_segment(rec: rr.RecordingStream, path: Path) -> None:
     rec.set_sinks(rr.FileSink(str(path)))
 
 
-def open_live(settings: TelemetrySettings, recording_id: str, port: int) -> rr.RecordingStream:
+def open_live(settings: TelemetrySettings, recording_id: str, port: int,
+              bounds: Bounds | None = None) -> rr.RecordingStream:
     """A recording stream serving the run live on ``serve_bind_ip``:`port` (gRPC), keeping
     at most ``serve_memory_limit_mb`` for viewers that connect late."""
     rec = rr.RecordingStream(settings.app_id, recording_id=recording_id)
     rec.set_sinks(
         rr.GrpcServerSink(bind_ip=settings.serve_bind_ip, port=port,
                           server_memory_limit=f"{settings.serve_memory_limit_mb}MiB"),
-        default_blueprint=default_blueprint(),
+        default_blueprint=default_blueprint(bounds),
     )
     return rec
 
@@ -259,6 +271,11 @@ class RunRecording:
             "rejected": {f"{k} {r}": n for (k, r), n in rejected.items()},
             "seq_gaps": {k: n for k, n in seq_gaps.items() if n},
             "record_errors": recorder.errors,
+            "series_samples_sent": recorder.scalars.sent,
+            "messages_decimated": recorder.shed,
+            "drawings": recorder.drawn,
+            "send_delay_ms": delay_summary(recorder.scalars.delays_s),
+            "draw_delay_ms": delay_summary(recorder.draw_delays_s),
         }
         recorder.event("telemetry", "info",
                        f"recording closed: {sum(recorder.counts.values())} messages logged, "
@@ -277,6 +294,15 @@ class RunRecording:
         _close_stream(self.rec, self.rrd)
         if self.live is not None:
             _close_stream(self.live, None)
+
+
+def delay_summary(delays_s: Iterable[float]) -> dict[str, float | int | None]:
+    """n, median, p99 and max [ms] of delays [s] (None without samples)."""
+    a = np.fromiter(delays_s, dtype=float) * 1e3
+    if a.size == 0:
+        return {"n": 0, "median": None, "p99": None, "max": None}
+    return {"n": int(a.size), "median": round(float(np.median(a)), 2),
+            "p99": round(float(np.percentile(a, 99)), 2), "max": round(float(a.max()), 2)}
 
 
 def _close_stream(rec: rr.RecordingStream, path: Path | None) -> None:
@@ -327,10 +353,12 @@ def start_recording(
     rrd = segment_path(run_dir, stem, 0)
     started = time.time()
     recording_id = f"{cfg.bus.car}-{run_dir.name}-{stem}"
-    rec = open_segment(tset, rrd, recording_id)
-    live = open_live(tset, recording_id, serve_port) if serve_port is not None else None
+    bounds = track_bounds(track)
+    rec = open_segment(tset, rrd, recording_id, bounds)
+    live = (open_live(tset, recording_id, serve_port, bounds) if serve_port is not None
+            else None)
     try:
-        save_blueprint(run_dir / "telemetry.rbl", tset.app_id)
+        save_blueprint(run_dir / "telemetry.rbl", tset.app_id, bounds)
     except Exception as exc:  # the layout is also inside the recording
         log.warning("could not write telemetry.rbl: %s", exc)
     print(f"telemetry: recording to {rrd} (a new segment every {tset.segment_interval_s:g} s)",

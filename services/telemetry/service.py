@@ -53,7 +53,8 @@ class TelemetryService(Service):
         super().__init__(bus)
         self.recording = recording
         self.settings = cfg.telemetry
-        self.inbox = Inbox(self.settings.queue_size, self.settings.event_queue_max)
+        self.inbox = Inbox(self.settings.queue_size, self.settings.event_queue_max,
+                           max_age_s=self.settings.max_queue_age_s)
         self._dropped_said = 0  # inbox drops already said on events/log
         self.subs = {
             suffix: self.subscribe(suffix, functools.partial(self.inbox.put, suffix))

@@ -46,8 +46,16 @@ class TelemetrySettings(Section):
             stays bounded by one segment.
         serve_memory_limit_mb: most data the live gRPC server keeps for late viewers [MiB]
             (the oldest is dropped beyond it).
-        visual_max_hz: most car / truth / horizon drawings per second of message time [Hz]
-            (scalar series always keep every message).
+        visual_max_hz: most car / truth / horizon drawings per second of message time [Hz].
+        series_max_hz: most scalar samples per second of message time per key [Hz] (a 100 Hz
+            key is plotted at this rate, in the recording and the live stream alike; lap and
+            log events are never decimated; 0 keeps every message).
+        max_queue_age_s: data messages that waited longer than this for the logging thread
+            are dropped (and counted per key) instead of logged late: when the telemetry
+            falls behind it catches up at once instead of lagging [s].
+        drop_summary_interval_s: the services' by-design "dropped N valid messages ...
+            overwritten" info reports are logged raw under ``events/drops`` and summarised
+            in the event log once per this interval per service [s of message time].
         scan_max_hz: most lidar scans drawn per second of message time [Hz] (0: none).
         path_interval_s: the driven path of the current lap is redrawn this often [s of
             message time].
@@ -71,6 +79,9 @@ class TelemetrySettings(Section):
     segment_interval_s: float = Field(60.0, gt=0.0, le=3600.0)
     serve_memory_limit_mb: int = Field(256, ge=16, le=65536)
     visual_max_hz: float = Field(20.0, gt=0.0, le=1000.0)
+    series_max_hz: float = Field(30.0, ge=0.0, le=1000.0)
+    max_queue_age_s: float = Field(2.0, gt=0.0, le=60.0)
+    drop_summary_interval_s: float = Field(30.0, gt=0.0, le=3600.0)
     scan_max_hz: float = Field(10.0, ge=0.0, le=1000.0)
     path_interval_s: float = Field(0.5, gt=0.0, le=60.0)
     max_path_points: int = Field(5000, ge=10, le=1_000_000)
