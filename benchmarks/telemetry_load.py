@@ -125,7 +125,9 @@ class HeadlessViewer:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "rerun", "--headless", "--bind", "127.0.0.1", "--port",
              str(self.port), "--window-size", window, "--hide-welcome-screen"],
-            env=env, stdout=self.log, stderr=subprocess.STDOUT)
+            env=env, stdout=self.log, stderr=subprocess.STDOUT,
+            start_new_session=True)  # `python -m rerun` runs the viewer binary as its child:
+        # stop() ends the whole group, or the binary outlives its wrapper
         self.client: Any = None
         deadline = time.monotonic() + START_TIMEOUT_S
         while self.client is None and time.monotonic() < deadline and self.proc.poll() is None:
@@ -183,13 +185,16 @@ class HeadlessViewer:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
-        if self.proc.poll() is None:
-            self.proc.terminate()
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            try:
+                os.killpg(self.proc.pid, sig)  # the group this viewer's wrapper leads
+            except ProcessLookupError:
+                break
             try:
                 self.proc.wait(timeout=10)
+                break
             except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=5)
+                continue
         self.log.close()
         return self.samples
 
