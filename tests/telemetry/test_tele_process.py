@@ -32,6 +32,7 @@ from services.tools import report
 from services.tools.launcher.supervisor import stop_process
 from shared.bus import Bus
 from shared.config import load_config
+from shared.config.methods import CIMPCC
 from shared.config.telemetry import TelemetrySettings
 from shared.keys import DRIVE_CMD, EVENTS_LOG, LAP, PLAN, POSE, STATE
 from shared.messages import LogEvent, State
@@ -383,9 +384,9 @@ def test_tele_report_of_the_recording(
     text = capsys.readouterr().out
     assert rc == 0, text
     lap_time = recorded["track"].length_m / SPEED_MPS
-    assert f"{lap_time:.3f}" in text and "CiMPCC" in text and "1/1" in text
+    assert f"{lap_time:.3f}" in text and CIMPCC in text and "1/1" in text
     doc = json.loads((tmp_path / "results.json").read_text())
-    laps = doc["methods"]["CiMPCC"]["laps"]
+    laps = doc["methods"][CIMPCC]["laps"]
     assert len(laps) == 1 and laps[0]["lap_time_s"] == pytest.approx(lap_time)
     for name in (
         "fig4_curvature.png",
