@@ -106,8 +106,10 @@ def header(result: SysidResult, source: str, base_name: str) -> str:
         f"racestack sysid: the car identified from {source}",
         f"({result.duration_s:.0f} s of driving; tyre model {result.model}; geometry and mass "
         f"from {base_name}).",
-        "Each parameter: estimate +- 1-sigma uncertainty [unit]. NOT IDENTIFIABLE ones are",
-        "kept from the base car in [vehicle] below (the value shown is a bound or a guess).",
+        "Each parameter: estimate +- 1-sigma uncertainty [unit] (statistical: the model's",
+        "own error is not in it). NOT IDENTIFIABLE ones are kept from the base car in",
+        "[vehicle] below (the value shown is a bound or a guess), except a Pacejka B and C",
+        "of which only the product is told: those are written as fitted.",
         "The delays are not [vehicle] fields: [simulator] actuation_delay_s +",
         "steering_delay_s, [planner] speed_delay_s / steering_delay_s (tracker).",
         "",
@@ -156,7 +158,7 @@ def write_figure(result: SysidResult, path: Path) -> None:
     score = np.convolve(covered, np.ones(span), mode="valid")
     i0 = int(np.argmax(score)) if len(score) else 0
     sl = slice(i0, i0 + span)
-    labels = {"steering_rad": "steering [rad]", "accel_mps2": "dv/dt [m/s^2]",
+    labels = {"steering_rad": "steering [rad]", "accel_mps2": "accel. demand [m/s^2]",
               "yaw_rate_radps": "yaw rate [rad/s]", "ay_mps2": "a_y [m/s^2]"}
     fig, axes = plt.subplots(len(labels), 1, figsize=(10, 9), sharex=True)
     for ax, (name, label) in zip(axes, labels.items(), strict=True):

@@ -24,12 +24,18 @@ linear-phase derivative of the odometry speed) on the speed error, unsaturated s
 
 Tyres (``fit_tyres``): output error of the project's single-track model
 (``shared.vehicle.single_track``, the simulator's equations) with the measured speed, road-
-wheel angle (plus a fitted offset) and longitudinal acceleration as inputs: slip angle and
+wheel angle (plus a fitted offset) and longitudinal acceleration as inputs (the speed
+divided by ``cos(beta)``: odometry measures the wheel speed ``v cos(beta)``): slip angle and
 yaw rate are integrated (midpoint rule) over windows of ``WINDOW_S`` where the car is
 faster than ``MIN_SPEED_MPS``, started from the measured yaw rate and the linear model's
-steady-state slip angle; the first ``BURN_IN_S`` of each window are not scored (the slip
-angle's start error dies out). Residuals: measured yaw rate and lateral acceleration
-(``F_Y / m``), each divided by its noise level. Levenberg-Marquardt over the log of the
+steady-state slip angle (``fit_tyres(fit_beta0=True)`` fits each window's start instead:
+experimental, it diverged on spin-heavy runs); the first ``BURN_IN_S`` of each window are
+not scored. Two passes: the
+second takes the tyres' drag of the first out of the acceleration demand and drops the
+windows the first fitted worst (spins and recoveries, ``OUTLIER_RMS``); the speed loop is
+fitted only where that drag is known.
+Residuals: measured yaw rate and lateral acceleration (``F_Y / m``), each divided by its
+noise level. Levenberg-Marquardt over the log of the
 tyre parameters (``TYRE_PARAMETERS`` per model):
 
 - ``linear``: ``mu C_Sf``, ``mu C_Sr`` (only the products act; ``mu`` stays the base's);
@@ -48,6 +54,8 @@ parameter whose relative uncertainty exceeds ``IDENTIFIABLE_REL_SIGMA``, whose g
 sits at the grid's edge, or whose effect the run never shows (a rate limit never reached,
 friction never used up, an acceleration limit never hit) is reported as not identifiable
 from this run; its value is then a bound or the base car's, and an overlay keeps the base.
+A Pacejka B and C correlated beyond ``BC_CORRELATION_MAX`` are not identifiable each (only
+their product is): the overlay writes them as fitted, since the product holds.
 
 Bad input raises ``SysidError`` with one line naming what is missing (too short, no
 cornering, a signal absent or too sparse).
@@ -91,6 +99,14 @@ WINDOW_S = 1.5
 BURN_IN_S = 0.25
 MIN_SPEED_MPS = 1.5
 MAX_WINDOWS = 160
+#: Pacejka B and C correlated beyond this: only their product (the small-slip stiffness
+#: with D) is told; each is then "not identifiable" but written as fitted (the product holds).
+BC_CORRELATION_MAX = 0.9
+PRODUCT_ONLY = "only B*C is told"
+#: Finite-difference step of the windows' initial slip angles [rad].
+BETA0_STEP_RAD = 1e-4
+#: Pass 2 of the tyre fit drops windows whose rms residual exceeds this x the median.
+OUTLIER_RMS = 3.0
 #: A parameter is identifiable when its 1-sigma is at most this share of its value.
 IDENTIFIABLE_REL_SIGMA = 0.25
 #: Steering grids: delay [s], time constant [s], rate limit [rad/s].
@@ -156,7 +172,8 @@ class SysidResult:
     def vehicle_overlay(self, base: DynamicVehicleParams) -> dict[str, Any]:
         """The ``[vehicle]`` fields of the identified car: the identifiable estimates, the
         base car's values for the rest (``tyre_model`` the fitted model)."""
-        e = {k: v for k, v in self.estimates.items() if v.identifiable}
+        e = {k: v for k, v in self.estimates.items()
+             if v.identifiable or v.note.startswith(PRODUCT_ONLY)}
         out: dict[str, Any] = {"tyre_model": self.model}
         if base.preset != "f1tenth_gym":
             out["preset"] = base.preset
@@ -421,13 +438,15 @@ def _accel_limit(v: np.ndarray, base: DynamicVehicleParams, a_max: float) -> np.
     return a_max * np.minimum(1.0, base.v_switch_mps / np.maximum(np.abs(v), 1e-3))
 
 
-def fit_speed(g: Grid, base: DynamicVehicleParams, xdrag: np.ndarray | None = None
+def fit_speed(g: Grid, base: DynamicVehicleParams, xdrag: np.ndarray | None = None,
+              known: np.ndarray | None = None,
               ) -> tuple[dict[str, Estimate], np.ndarray, np.ndarray]:
     """Speed-loop gains, delay and acceleration limit (module docstring); also the
     measured and the predicted acceleration demand on the grid. The measured demand is
     the IMU's ``a_x`` (``F_X / m`` of the body) less `xdrag`, the tyres' part of it
     (``fit_tyres``: the front axle's lateral force along the body when it steers);
-    without `xdrag`, ``a_x`` itself.
+    without `xdrag`, ``a_x`` itself. `known`: the samples where `xdrag` is known (the
+    others are not used).
 
     For each (delay, a_max) of a grid the gains are the least squares over the samples the
     loop does not saturate (two passes); the sum of squares over all samples picks both.
@@ -435,6 +454,8 @@ def fit_speed(g: Grid, base: DynamicVehicleParams, xdrag: np.ndarray | None = No
     dt = float(g.t[1] - g.t[0])
     a = g.ax if xdrag is None else g.ax - np.nan_to_num(xdrag)
     ok = g.ok & (np.abs(g.v) > 0.3)
+    if known is not None:
+        ok &= known
     n = len(g.t)
     idx = np.arange(n)
     scale = np.minimum(1.0, base.v_switch_mps / np.maximum(np.abs(g.v), 1e-3))
@@ -572,12 +593,20 @@ class Lateral(NamedTuple):
     sat: np.ndarray
 
 
+def beta_start(g: Grid, starts: np.ndarray, p: DynamicVehicleParams) -> np.ndarray:
+    """The linear model's steady-state slip angle [rad] at each window's start, from the
+    measured yaw rate and speed: ``beta = l_r r / v - v r / (g k_r)``."""
+    r, v = g.r[starts], g.v[starts]
+    return p.lr_m * r / v - v * r / (GRAVITY_MPS2 * _rear_small_slip(p))
+
+
 def simulate_lateral(
     g: Grid, starts: np.ndarray, p: DynamicVehicleParams, offset_rad: float,
-    a_in: np.ndarray | None = None,
+    a_in: np.ndarray | None = None, beta0: np.ndarray | None = None,
 ) -> Lateral:
     """The single-track model over the windows starting at `starts` (module docstring);
-    `a_in`: the acceleration demand on the grid (None: the measured ``a_x``)."""
+    `a_in`: the acceleration demand on the grid (None: the measured ``a_x``); `beta0`:
+    each window's initial slip angle [rad] (None: ``beta_start``)."""
     dt = float(g.t[1] - g.t[0])
     w = round(WINDOW_S / dt)
     idx = starts[:, None] + np.arange(w)[None, :]
@@ -586,8 +615,7 @@ def simulate_lateral(
     f = make_dynamic_derivatives(p, NUMPY_OPS, raw=True)
     m, linear = p.mass_kg, p.tyre_model == "linear"
     r = g.r[idx[:, 0]].copy()
-    k_r = _rear_small_slip(p)
-    beta = p.lr_m * r / v[:, 0] - v[:, 0] * r / (GRAVITY_MPS2 * k_r)
+    beta = beta_start(g, starts, p) if beta0 is None else np.asarray(beta0, dtype=float)
     r_out = np.empty_like(v)
     ay_out = np.empty_like(v)
     drag_out = np.empty_like(v)
@@ -610,7 +638,8 @@ def simulate_lateral(
         return (front[0] * np.sin(dk) + front[1] * np.cos(dk) + rear[1]) / m
 
     for k in range(w):
-        vk, dk, ak = v[:, k], d[:, k], a[:, k]
+        # the odometry's wheel speed is v cos(beta): the model's v is the CoG speed
+        vk, dk, ak = v[:, k] / np.cos(beta), d[:, k], a[:, k]
         _dv, db, dr, fr, rr = f(vk, beta, r, dk, ak)
         r_out[:, k] = r
         ay_out[:, k] = lateral(fr, rr, dk)
@@ -620,9 +649,10 @@ def simulate_lateral(
             xdrag_out[:, k] = (fr[0] * cd - fr[1] * sd + rr[0]) / m - ak
         sat_out[:, k] = saturated(fr, rr)
         if k + 1 < w:
-            vm, dm, am = 0.5 * (vk + v[:, k + 1]), 0.5 * (dk + d[:, k + 1]), \
-                0.5 * (ak + a[:, k + 1])
-            _dv, db2, dr2, _f, _r = f(vm, beta + 0.5 * dt * db, r + 0.5 * dt * dr, dm, am)
+            b_mid = beta + 0.5 * dt * db
+            vm = 0.5 * (v[:, k] + v[:, k + 1]) / np.cos(b_mid)
+            dm, am = 0.5 * (dk + d[:, k + 1]), 0.5 * (ak + a[:, k + 1])
+            _dv, db2, dr2, _f, _r = f(vm, b_mid, r + 0.5 * dt * dr, dm, am)
             beta = np.clip(beta + dt * db2, -0.8, 0.8)
             r = np.clip(r + dt * dr2, -20.0, 20.0)
     return Lateral(r_out, ay_out, drag_out, xdrag_out, sat_out)
@@ -631,14 +661,19 @@ def simulate_lateral(
 def fit_tyres(
     g: Grid, base: DynamicVehicleParams, model: str, iterations: int = 30,
     a_in: np.ndarray | None = None, theta_start: np.ndarray | None = None,
+    starts: np.ndarray | None = None, fit_beta0: bool = False,
 ) -> tuple[dict[str, Estimate], dict[str, np.ndarray], dict[str, Any]]:
     """The tyre parameters of `model` and the steering offset (module docstring); also the
     predicted yaw rate, lateral acceleration and drags on the grid (NaN / 0 outside the
-    windows). `a_in`: the acceleration demand (None: the measured a_x); `theta_start`: the
-    start of the search (a previous fit's ``info["theta"]``)."""
+    windows) and whether the tyres' drag is known there (``known``: inside a window, or too
+    slow and straight for any). `a_in`: the acceleration demand (None: the measured a_x);
+    `theta_start`: the start of the search (a previous fit's ``info["theta"]``); `starts`:
+    the windows (None: ``_windows``); `fit_beta0`: fit each window's initial slip angle too
+    (else the linear steady state of the current parameters). ``info["window_rms"]``: each
+    window's rms residual (noise units)."""
     if model not in TYRE_PARAMETERS:
         raise SysidError(f"unknown tyre model {model!r} (linear, linear_saturated, pacejka)")
-    starts = _windows(g)
+    starts = _windows(g) if starts is None else starts
     dt = float(g.t[1] - g.t[0])
     w = round(WINDOW_S / dt)
     burn = round(BURN_IN_S / dt)
@@ -651,25 +686,47 @@ def fit_tyres(
     sig_ay = max(noise_std(g.ay[g.ok]), 0.1)
     lo, hi = _bounds(model)
 
+    n_s, n_g = w - burn, len(lo)
+    n_w = len(starts) if fit_beta0 else 0
+    # with fit_beta0 every window's initial slip angle is a parameter too (its columns of
+    # the Jacobian come from one simulation: the windows do not interact)
+    lo = np.concatenate([lo, np.full(n_w, -0.6)])
+    hi = np.concatenate([hi, np.full(n_w, 0.6)])
+    rows = np.arange(n_w * n_s).reshape(n_w, n_s)
+    win_rows = np.concatenate([rows, rows + n_w * n_s], axis=1)  # (n_w, 2 n_s)
+
     def residuals(theta: np.ndarray) -> np.ndarray:
-        p, off = _params_from(theta, model, base)
-        pred = simulate_lateral(g, starts, p, off, a_in)
+        p, off = _params_from(theta[:n_g], model, base)
+        pred = simulate_lateral(g, starts, p, off, a_in, theta[n_g:] if n_w else None)
         r_p, ay_p = pred.r, pred.ay
         return np.concatenate([((r_p[:, burn:] - r_meas) / sig_r).ravel(),
                                ((ay_p[:, burn:] - ay_meas) / sig_ay).ravel()])
 
-    theta = np.clip(_theta0(model, base) if theta_start is None else theta_start, lo, hi)
-    res = residuals(theta)
-    cost = float(res @ res)
-    lam = 1e-2
-    steps = np.full(len(theta), 1e-3)
-    steps[-1] = 1e-4
-    J = np.zeros((len(res), len(theta)))
-    for _it in range(iterations):
-        for i in range(len(theta)):
+    def jacobian(theta: np.ndarray, res: np.ndarray) -> np.ndarray:
+        J = np.zeros((len(res), len(theta)))
+        for i in range(n_g):
             th = theta.copy()
             th[i] += steps[i]
             J[:, i] = (residuals(th) - res) / steps[i]
+        if n_w:
+            th = theta.copy()
+            th[n_g:] += BETA0_STEP_RAD
+            d = (residuals(th) - res) / BETA0_STEP_RAD
+            J[win_rows, n_g + np.arange(n_w)[:, None]] = d[win_rows]
+        return J
+
+    theta_g = _theta0(model, base) if theta_start is None else theta_start
+    p0, _off0 = _params_from(theta_g, model, base)
+    beta0 = beta_start(g, starts, p0) if n_w else np.zeros(0)
+    theta = np.clip(np.concatenate([theta_g, beta0]), lo, hi)
+    res = residuals(theta)
+    cost = float(res @ res)
+    lam = 1e-2
+    steps = np.full(n_g, 1e-3)
+    steps[-1] = 1e-4
+    rel = 1.0
+    for _it in range(iterations):
+        J = jacobian(theta, res)
         JtJ, Jtr = J.T @ J, J.T @ res
         improved = False
         for _ in range(8):
@@ -687,21 +744,20 @@ def fit_tyres(
             lam *= 4.0
         if not improved or rel < 1e-6:
             break
-    for i in range(len(theta)):  # the Jacobian at the optimum
-        th = theta.copy()
-        th[i] += steps[i]
-        J[:, i] = (residuals(th) - res) / steps[i]
+    J = jacobian(theta, res)  # at the optimum
     n_r = idx.size
     s2 = cost / max(len(res) - len(theta), 1)
     infl = max(_n_eff_factor(res[:n_r]), _n_eff_factor(res[n_r:]))
     cov = s2 * infl * np.linalg.pinv(J.T @ J, rcond=1e-10)
     sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
     names = TYRE_PARAMETERS[model]
-    p_hat, off = _params_from(theta, model, base)
-    pred = simulate_lateral(g, starts, p_hat, off, a_in)
+    p_hat, off = _params_from(theta[:n_g], model, base)
+    pred = simulate_lateral(g, starts, p_hat, off, a_in, theta[n_g:] if n_w else None)
     r_p, ay_p, sat = pred.r, pred.ay, pred.sat
     out: dict[str, Estimate] = {}
     sat_share = float(np.mean(sat[:, burn:]))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sig, sig)
     for i, name in enumerate(names):
         val = float(math.exp(theta[i]))
         sigma = val * float(sig[i]) if np.isfinite(sig[i]) else math.inf
@@ -710,15 +766,22 @@ def fit_tyres(
             note = "at its search bound"
         elif (name == "mu" or name.endswith("_D")) and sat_share < 0.005:
             note = f"friction never used up ({100 * sat_share:.1f} % of the samples at it)"
+        elif name[-2:] in ("_B", "_C"):
+            j = i + 1 if name.endswith("_B") else i - 1  # its partner C or B
+            rho = float(abs(corr[i, j]))
+            if rho > BC_CORRELATION_MAX:
+                note = f"{PRODUCT_ONLY} (correlation of B and C {rho:.2f})"
         out[name] = _estimate(name, val, sigma, "1/rad" if "stiffness" in name else "", note)
-    out["steering_offset_rad"] = Estimate("steering_offset_rad", off, float(sig[-1]),
-                                          bool(sig[-1] < 0.01), "rad",
-                                          "" if sig[-1] < 0.01 else "not resolved")
+    s_off = float(sig[n_g - 1])
+    out["steering_offset_rad"] = Estimate("steering_offset_rad", off, s_off, s_off < 0.01,
+                                          "rad", "" if s_off < 0.01 else "not resolved")
     r_full = np.full(len(g.t), np.nan)
     ay_full = np.full(len(g.t), np.nan)
     full = starts[:, None] + np.arange(burn, w)[None, :]
     r_full[full] = r_p[:, burn:]
     ay_full[full] = ay_p[:, burn:]
+    known = (np.abs(g.v) < MIN_SPEED_MPS) & (np.abs(g.ay) < CORNER_AY_MPS2)
+    known[full] = True
     drag_full = np.zeros(len(g.t))
     drag_full[full] = pred.drag[:, burn:]
     xdrag_full = np.zeros(len(g.t))
@@ -727,9 +790,11 @@ def fit_tyres(
         (r_p[:, burn:] - r_meas) ** 2))), "rms_ay_mps2": float(np.sqrt(np.mean(
             (ay_p[:, burn:] - ay_meas) ** 2))), "noise_yaw_rate_radps": sig_r,
             "noise_ay_mps2": sig_ay, "at_friction_limit_share": sat_share,
-            "theta": theta}
+            "theta": theta[:n_g], "starts": starts, "window_rms": np.sqrt(np.mean(
+                (((r_p[:, burn:] - r_meas) / sig_r) ** 2 + ((ay_p[:, burn:] - ay_meas)
+                                                             / sig_ay) ** 2) / 2, axis=1))}
     return out, {"yaw_rate": r_full, "ay": ay_full, "drag": drag_full,
-                 "xdrag": xdrag_full}, info
+                 "xdrag": xdrag_full, "known": known}, info
 
 
 # ------------------------------------------------------------------ all together
@@ -749,11 +814,17 @@ def identify(signals: Mapping[str, Any], base: DynamicVehicleParams,
     steer, d_pred = fit_steering(g, base)
     # pass 1 with the measured a_x as the demand, pass 2 with the tyres' drag taken out of
     # it (the load transfer and the friction ellipse follow the demand)
+    # it (the load transfer and the friction ellipse follow the demand), without the
+    # windows the model fits worst (spins, recoveries: rms over OUTLIER_RMS x the median)
     _t, lat1, info1 = fit_tyres(g, base, model)
-    tyres, lat_pred, info = fit_tyres(g, base, model, 15, g.ax - lat1["xdrag"],
-                                      info1.pop("theta"))
-    info.pop("theta")
-    speed, a_meas, a_pred = fit_speed(g, base, lat_pred["xdrag"])
+    rms = info1["window_rms"]
+    keep = info1["starts"][rms <= OUTLIER_RMS * np.median(rms)]
+    tyres, lat_pred, info = fit_tyres(g, base, model, 12, g.ax - lat1["xdrag"],
+                                      info1["theta"], keep)
+    info["windows_dropped"] = len(rms) - len(keep)
+    for k in ("theta", "starts", "window_rms"):
+        info.pop(k)
+    speed, a_meas, a_pred = fit_speed(g, base, lat_pred["xdrag"], lat_pred["known"])
     est.update(steer)
     est.update(speed)
     est.update(tyres)
