@@ -7,6 +7,7 @@ racestack bench ...              the paper's lap-time experiment in one process
 racestack mintime ...            the minimum-time lap of the car (the limit, the planner's lines)
 racestack tune ...               search a method's parameters for the fastest clean laps
 racestack report RUN             the lap table and figures of a recorded run
+racestack sysid RUN --out F      the car identified from a recorded run (a [vehicle] overlay)
 racestack track --from-map M     a track (centreline CSV + PNG) from a SLAM map's yaml
 racestack laps                   the planner against its own kinematic model
 racestack certs --out DIR        the secure profile's local CA and per-service certificates
@@ -121,6 +122,12 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from services.tools.report import main as report_main
 
     return int(report_main(args.rest))
+
+
+def _cmd_sysid(args: argparse.Namespace) -> int:
+    from services.tools.sysid import main as sysid_main
+
+    return sysid_main(args=args)
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
@@ -244,6 +251,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     report.add_argument("rest", nargs=argparse.REMAINDER, help="RUN.rrd or run folder, options")
     report.set_defaults(handler=_cmd_report)
+
+    from services.tools.sysid import build_parser as sysid_parser
+
+    sysid = sub.add_parser("sysid", help="the car identified from a recorded run ([vehicle])")
+    sysid_parser(sysid)
+    sysid.set_defaults(handler=_cmd_sysid)
 
     from services.tools.track import build_parser as track_parser
 

@@ -40,6 +40,7 @@ TOOL_ORDER: tuple[frozenset[str], ...] = (
     frozenset({"launcher"}),
     frozenset({"tune"}),
     frozenset({"bench"}),
+    frozenset({"sysid"}),
     frozenset({"mintime", "report", "track", "certs", "config_reference"}),
 )
 #: Which modules may import zenoh (rule 5): the bus package's session modules.

@@ -1,0 +1,242 @@
+"""System identification from ordinary racing: does ``racestack sysid`` find the car?
+
+For three cars the simulator races (the identified preset, Pacejka tyres, and two with its
+tyre, steering and speed-loop parameters changed by 20-40 %), a planner races the car in
+the bench's closed loop (``services.tools.bench``: planner and simulator in one process, the
+planner told the true car so that it drives it well) for ``--duration`` seconds; the
+simulator's own odometry and IMU (with their noise, the simulator's actuation and steering
+delays) and the planner's commands are recorded as the stack records them, and
+``shared.vehicle.identification.identify`` fits the car from them, never from the truth. Its
+base car gives only geometry and mass; the tyres start from a neutral guess
+(``B = 10, C = 1.5, D = 1`` per axle; ``E`` stays the base's, 0.373 front and 0 rear, as
+``identify`` does not fit it), the actuators from the F1TENTH gym's values.
+
+Prints, per car and parameter, the true value (for the delays: as the bench's loop acts
+them, the configured delay rounded up to the simulator's sub-step, ``acted_delay``), the
+estimate +- 1 sigma, the error and whether it is within 10 % (friction, the Pacejka D: 5 %;
+delays: 10 ms), and which ones the run cannot tell ("not identifiable from this run").
+
+    python -m benchmarks.sysid [--duration 120] [--track builtin:paperlike]
+        [--method cimpcc] [--cars identified,softer,grippier]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from services.planner import PlannerPool, laps_of, make_min_time_lap, request_for
+from services.simulator import ImuSensor, OdometrySensor
+from services.simulator.dynamics import friction_accel_limit
+from services.tools.bench import LoopOptions, SimulatorPlant, race
+from shared.config import RacestackConfig, config_from_dict
+from shared.config.methods import CIMPCC, planner_methods
+from shared.config.vehicle import DynamicVehicleParams, vehicle_preset
+from shared.track import load_track
+from shared.vehicle.identification import SysidResult, identify
+
+_ID = vehicle_preset("real_car_identified")
+#: The cars the simulator races: name -> [vehicle] overrides of the identified preset.
+CARS: dict[str, dict[str, Any]] = {
+    "identified": {},
+    # tyres 25-30 % weaker, a 30 % slower servo, a 30 % softer speed loop
+    "softer": {
+        "pacejka_front": (4.80 * 0.7, 2.16 * 0.8, 0.650 * 0.75, 0.373),
+        "pacejka_rear": (20.0 * 0.7, 1.5 * 1.2, 0.618 * 0.75, 0.0),
+        "steering_time_constant_s": 0.158 * 1.3,
+        "speed_gain_accel_per_s": 4.755 * 0.7,
+        "speed_gain_brake_per_s": 19.02 * 0.7,
+    },
+    # grippier (D + 25 %), stiffer rear (B - 20 %, C + 20 %), a faster servo with a lower rate
+    # limit, a 35 % stiffer speed loop
+    "grippier": {
+        "pacejka_front": (4.80 * 1.3, 2.16 * 0.8, 0.650 * 1.25, 0.373),
+        "pacejka_rear": (20.0 * 0.8, 1.5 * 1.2, 0.618 * 1.25, 0.0),
+        "steering_time_constant_s": 0.158 * 0.6,
+        "steering_rate_max_radps": 3.2 * 0.7,
+        "steering_rate_min_radps": -3.2 * 0.7,
+        "speed_gain_accel_per_s": 4.755 * 1.35,
+        "speed_gain_brake_per_s": 19.02 * 1.35,
+    },
+}
+#: The neutral start of the tyre fit (B, C, D) per axle.
+NEUTRAL_BCD = (10.0, 1.5, 1.0)
+
+
+def car(name: str) -> DynamicVehicleParams:
+    """The simulated car `name` (``CARS``)."""
+    return vehicle_preset("real_car_identified", **CARS[name])
+
+
+def base_for(true: DynamicVehicleParams) -> DynamicVehicleParams:
+    """What ``identify`` is given: the true geometry and mass, the gym's actuators, the
+    neutral Pacejka guess (the true ``E``s, which it does not fit)."""
+    gym = vehicle_preset("f1tenth_gym")
+    keep = ("mass_kg", "yaw_inertia_kgm2", "lf_m", "lr_m", "cog_height_m", "steering_min_rad",
+            "steering_max_rad", "width_m", "length_m")
+    return gym.model_copy(update={
+        **{k: getattr(true, k) for k in keep}, "tyre_model": "pacejka", "mu": 1.0,
+        "pacejka_front": (*NEUTRAL_BCD, true.pacejka_front[3]),
+        "pacejka_rear": (*NEUTRAL_BCD, true.pacejka_rear[3])})
+
+
+def config_of(true: DynamicVehicleParams) -> RacestackConfig:
+    """The configuration that races `true` (the planners told the car)."""
+    veh = true.model_dump()
+    veh = {k: list(v) if isinstance(v, tuple) else v for k, v in veh.items()}
+    return config_from_dict({"vehicle": veh})
+
+
+def record_drive(cfg: RacestackConfig, track_spec: str, method: str, duration_s: float
+                 ) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, Any]]:
+    """Race `method` for `duration_s` in the bench's closed loop; the recorded signals
+    (``identification.SIGNALS``) and a summary (laps, off-track events, wall time)."""
+    track = load_track(track_spec)
+    for use in laps_of(method, cfg.planner):  # the lines a method races on, solved once
+        make_min_time_lap(track, *request_for(use, cfg.planner, cfg.vehicle), use=use,
+                          progress=None)
+    pool = PlannerPool(track, cfg.vehicle)
+    planner = pool.planner(cfg.planner, method, cfg.curvature)
+    planner.reset()
+    plant = SimulatorPlant(track, cfg.simulator, LoopOptions(laps=10_000))
+    sim = plant.sim
+    seed = cfg.simulator.seed
+    imu = ImuSensor(cfg.simulator.imu, np.random.default_rng(seed + 101))
+    odo = OdometrySensor(cfg.simulator.odometry, np.random.default_rng(seed + 102))
+    rows: dict[str, list[tuple[float, float]]] = {k: [] for k in (
+        "cmd_speed_mps", "cmd_steering_rad", "speed_mps", "steering_rad", "yaw_rate_radps",
+        "ax_mps2", "ay_mps2")}
+    step = sim.step
+    last: list[Any] = [None]
+
+    def recording_step(command: Any = None, dt_s: float | None = None) -> Any:
+        if command is not None and command is not last[0]:  # a new cmd/drive, stamped now
+            last[0] = command
+            rows["cmd_speed_mps"].append((sim.t_s, float(command[0])))
+            rows["cmd_steering_rad"].append((sim.t_s, float(command[1])))
+        out = step(command, dt_s)
+        for m in imu.update(out):
+            rows["yaw_rate_radps"].append((m.stamp_s, m.yaw_rate_radps))
+            rows["ax_mps2"].append((m.stamp_s, m.accel_long_mps2))
+            rows["ay_mps2"].append((m.stamp_s, m.accel_lat_mps2))
+        for m in odo.update(out):
+            rows["speed_mps"].append((m.stamp_s, m.speed_mps))
+            rows["steering_rad"].append((m.stamp_s, m.steering_rad))
+        return out
+
+    sim.step = recording_step  # type: ignore[method-assign]
+    t0 = time.perf_counter()
+    got = race(planner, plant, None, max_ticks=int(duration_s / cfg.planner.dt_s), reset=False)
+    signals = {k: (np.array([a for a, _ in v]), np.array([b for _, b in v]))
+               for k, v in rows.items()}
+    ays = np.abs(signals["ay_mps2"][1])
+    summary = {"laps": plant.laps_completed, "off_track": plant.off_all,
+               "stop": got.stop_reason or plant.stop_reason, "sim_s": sim.t_s,
+               "wall_s": time.perf_counter() - t0,
+               "ay_p95": float(np.percentile(ays, 95)) if len(ays) else 0.0}
+    return signals, summary
+
+
+def acted_delay(delay_s: float, cfg: RacestackConfig) -> float:
+    """The delay [s] a command meets in the bench's loop: it is pushed `compute_delay_s`
+    into a tick and acts from the first simulator sub-step that starts at least `delay_s`
+    later; the sub-steps after the push are ``(dt - compute) / n`` long (n of them, at most
+    ``integration_step_s`` each). So the simulator adds up to one sub-step (~9.6 ms) to
+    its configured delays."""
+    compute = LoopOptions().compute_delay_s
+    rest = cfg.planner.dt_s - compute
+    h = rest / math.ceil(rest / cfg.simulator.integration_step_s - 1e-9)
+    return math.ceil(delay_s / h - 1e-9) * h
+
+
+def truths(true: DynamicVehicleParams, cfg: RacestackConfig) -> dict[str, float]:
+    """The true value of every parameter ``identify`` reports (the Pacejka model)."""
+    sim = cfg.simulator
+    out = {
+        "steering_delay_s": acted_delay(sim.actuation_delay_s + sim.steering_delay_s, cfg),
+        "steering_time_constant_s": true.steering_time_constant_s,
+        "steering_rate_max_radps": true.steering_rate_max_radps,
+        "speed_gain_accel_per_s": true.speed_gain_accel_per_s,
+        "speed_gain_brake_per_s": true.speed_gain_brake_per_s,
+        "speed_delay_s": acted_delay(sim.actuation_delay_s, cfg),
+        # the simulator's acceleration limit: a_max, or the tyres' friction when lower
+        "accel_max_mps2": min(true.accel_max_mps2, friction_accel_limit(true)),
+        "steering_offset_rad": 0.0,
+    }
+    for axle, coeffs in (("front", true.pacejka_front), ("rear", true.pacejka_rear)):
+        for letter, value in zip("BCD", coeffs[:3], strict=True):
+            out[f"pacejka_{axle}_{letter}"] = true.mu * value if letter == "D" else value
+    return out
+
+
+def tolerance(name: str) -> tuple[float, bool]:
+    """(tolerance, absolute?) of a parameter: delays and the offset absolute, 10 ms and
+    5 mrad; friction (the D) 5 %; the rest 10 %."""
+    if name.endswith("_delay_s"):
+        return 0.010, True
+    if name == "steering_offset_rad":
+        return 0.005, True
+    return (0.05 if name.endswith("_D") else 0.10), False
+
+
+def table(name: str, result: SysidResult, true: dict[str, float]) -> tuple[list[str], int, int]:
+    """The printed rows of one car; (rows, within tolerance, identifiable)."""
+    rows = [f"  {'parameter':28s} {'true':>9s} {'estimate':>10s} {'+- 1 sigma':>10s} "
+            f"{'error':>8s}  within  identifiable"]
+    good = told = 0
+    for key, e in result.estimates.items():
+        t = true.get(key, math.nan)
+        tol, absolute = tolerance(key)
+        err = e.value - t
+        within = abs(err) <= tol if absolute else abs(err) <= tol * abs(t)
+        err_txt = f"{1e3 * err:+7.1f}ms" if key.endswith("_s") and absolute else \
+            f"{1e3 * err:+6.1f}mrad" if absolute else f"{100 * err / t:+7.1f}%"
+        sig = f"{e.sigma:.3g}" if math.isfinite(e.sigma) else "inf"
+        ident = "yes" if e.identifiable else f"NO: not identifiable from this run ({e.note})"
+        rows.append(f"  {key:28s} {t:9.4g} {e.value:10.4g} {sig:>10s} {err_txt:>8s}  "
+                    f"{'yes' if within else 'NO ':6s}  {ident}")
+        good += within and e.identifiable
+        told += e.identifiable
+    return rows, good, told
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark (module docstring); 0 always (it reports, it does not judge)."""
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.sysid", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration", type=float, default=120.0, help="seconds of racing per car")
+    ap.add_argument("--track", default="builtin:paperlike")
+    ap.add_argument("--method", default=CIMPCC, choices=planner_methods())
+    ap.add_argument("--cars", default=",".join(CARS), help=f"of {', '.join(CARS)}")
+    args = ap.parse_args(argv)
+    for name in args.cars.split(","):
+        true = car(name)
+        cfg = config_of(true)
+        signals, summ = record_drive(cfg, args.track, args.method, args.duration)
+        print(f"\n{name}: {args.method} on {args.track}, {summ['sim_s']:.0f} s simulated "
+              f"({summ['wall_s']:.0f} s wall), {summ['laps']} laps, {summ['off_track']} "
+              f"off-track events{', stopped: ' + summ['stop'] if summ['stop'] else ''}; "
+              f"|a_y| p95 {summ['ay_p95']:.2f} m/s^2")
+        t0 = time.perf_counter()
+        result = identify(signals, base_for(true), "pacejka")
+        rows, good, told = table(name, result, truths(true, cfg))
+        print("\n".join(rows))
+        print(f"  fit {time.perf_counter() - t0:.1f} s; {good} of {told} identifiable "
+              f"parameters within tolerance; residuals: yaw rate "
+              f"{result.fit_info['rms_yaw_rate_radps']:.3f} rad/s, a_y "
+              f"{result.fit_info['rms_ay_mps2']:.3f} m/s^2 rms; "
+              f"{100 * result.fit_info['at_friction_limit_share']:.1f} % of the samples at "
+              "the friction limit; "
+              f"{result.fit_info['windows']} windows ({result.fit_info['windows_dropped']} "
+              "dropped)")
+        sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

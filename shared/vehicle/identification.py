@@ -1,0 +1,837 @@
+"""System identification of the car from a recorded run: the fitting maths (no I/O).
+
+Input: time series [s, value] of what the stack records while it drives (never the
+simulator's truth): the drive command (``cmd/drive``: target speed [m/s] and steering
+[rad]), the wheel odometry (``vehicle/odom``: speed [m/s], road-wheel angle [rad]) and the
+IMU (``vehicle/imu``: yaw rate [rad/s], body-frame accelerations [m/s^2]); ``SIGNALS``
+names them. ``identify(signals, base, model)`` resamples them on one grid of ``GRID_DT_S``
+and fits three parts of the car, each by least squares:
+
+Steering (``fit_steering``): the servo of ``services.simulator.actuators``, i.e. the command
+acts after a delay ``T_d`` and the wheel follows it as a first-order lag (time constant
+``tau``) clipped to a rate limit ``R``::
+
+    delta[k+1] = delta[k] + clip((cmd(t_k - T_d) - delta[k]) (1 - exp(-dt / tau)), -R dt, R dt)
+
+simulated from the first measured angle for a grid of (T_d, tau, R) at once, then on a finer
+grid around the best; error: the measured road-wheel angle.
+
+Speed loop (``fit_speed``): ``v' = k (v_cmd(t - T_v) - v)`` with ``k = k_accel`` while |v|
+grows and ``k_brake`` while it shrinks, clipped to ``a_max`` (``a_max v_switch / v`` above
+v_switch). For each delay on a grid, linear least squares of the measured ``v'`` (a
+linear-phase derivative of the odometry speed) on the speed error, unsaturated samples only;
+``a_max`` is the median acceleration where the loop asks for clearly more than it gets.
+
+Tyres (``fit_tyres``): output error of the project's single-track model
+(``shared.vehicle.single_track``, the simulator's equations) with the measured speed, road-
+wheel angle (plus a fitted offset) and longitudinal acceleration as inputs (the speed
+divided by ``cos(beta)``: odometry measures the wheel speed ``v cos(beta)``): slip angle and
+yaw rate are integrated (midpoint rule) over windows of ``WINDOW_S`` where the car is
+faster than ``MIN_SPEED_MPS``, started from the measured yaw rate and the linear model's
+steady-state slip angle (``fit_tyres(fit_beta0=True)`` fits each window's start instead:
+experimental, it diverged on spin-heavy runs); the first ``BURN_IN_S`` of each window are
+not scored. Two passes: the
+second takes the tyres' drag of the first out of the acceleration demand and drops the
+windows the first fitted worst (spins and recoveries, ``OUTLIER_RMS``); the speed loop is
+fitted only where that drag is known.
+Residuals: measured yaw rate and lateral acceleration (``F_Y / m``), each divided by its
+noise level. Levenberg-Marquardt over the log of the
+tyre parameters (``TYRE_PARAMETERS`` per model):
+
+- ``linear``: ``mu C_Sf``, ``mu C_Sr`` (only the products act; ``mu`` stays the base's);
+- ``linear_saturated``: ``C_Sf``, ``C_Sr``, ``mu``;
+- ``pacejka``: ``B, C, D`` per axle (``E`` and ``mu = 1`` as in the base car; D is then the
+  peak friction coefficient).
+
+Geometry and mass (``m, I_z, l_f, l_r, h``) come from the base car (weighed and measured,
+not fitted).
+
+Uncertainty: one standard deviation from the curvature of the sum of squares at the
+optimum (Gauss-Newton ``s^2 (J^T J)^-1``, or a parabola through the profile of a grid
+parameter), scaled by the residuals' own variance and by ``n / n_eff`` for their
+correlation (lag-1 autocorrelation ``rho``: ``n_eff = n (1 - rho) / (1 + rho)``). A
+parameter whose relative uncertainty exceeds ``IDENTIFIABLE_REL_SIGMA``, whose grid optimum
+sits at the grid's edge, or whose effect the run never shows (a rate limit never reached,
+friction never used up, an acceleration limit never hit) is reported as not identifiable
+from this run; its value is then a bound or the base car's, and an overlay keeps the base.
+A Pacejka B and C correlated beyond ``BC_CORRELATION_MAX`` are not identifiable each (only
+their product is): the overlay writes them as fitted, since the product holds.
+
+Bad input raises ``SysidError`` with one line naming what is missing (too short, no
+cornering, a signal absent or too sparse).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from shared.config.vehicle import GRAVITY_MPS2, DynamicVehicleParams
+from shared.vehicle.ops import Ops
+from shared.vehicle.single_track import make_dynamic_derivatives
+from shared.vehicle.tyres import pacejka_peak_slip_rad
+
+#: The signals ``identify`` needs, each ``(t [s], value)``.
+SIGNALS: tuple[str, ...] = (
+    "cmd_speed_mps",
+    "cmd_steering_rad",
+    "speed_mps",
+    "steering_rad",
+    "yaw_rate_radps",
+    "ax_mps2",
+    "ay_mps2",
+)
+#: Resampling grid step [s].
+GRID_DT_S = 0.01
+#: Shortest usable run (overlap of all signals) [s].
+MIN_DURATION_S = 20.0
+#: "Cornering": at least MIN_CORNER_SHARE of the samples with |a_y| above this [m/s^2].
+CORNER_AY_MPS2 = 1.5
+MIN_CORNER_SHARE = 0.05
+#: A gap in one signal longer than this [s] makes the samples inside it unusable.
+MAX_GAP_S = 0.25
+#: Tyre fit windows: length, unscored start, slowest speed, most windows used.
+WINDOW_S = 1.5
+BURN_IN_S = 0.25
+MIN_SPEED_MPS = 1.5
+MAX_WINDOWS = 160
+#: Pacejka B and C correlated beyond this: only their product (the small-slip stiffness
+#: with D) is told; each is then "not identifiable" but written as fitted (the product holds).
+BC_CORRELATION_MAX = 0.9
+PRODUCT_ONLY = "only B*C is told"
+#: Finite-difference step of the windows' initial slip angles [rad].
+BETA0_STEP_RAD = 1e-4
+#: Pass 2 of the tyre fit drops windows whose rms residual exceeds this x the median.
+OUTLIER_RMS = 3.0
+#: A parameter is identifiable when its 1-sigma is at most this share of its value.
+IDENTIFIABLE_REL_SIGMA = 0.25
+#: Steering grids: delay [s], time constant [s], rate limit [rad/s].
+STEER_DELAYS_S = np.arange(-0.03, 0.2001, GRID_DT_S)
+STEER_TAUS_S = np.geomspace(0.005, 0.5, 15)
+STEER_RATES_RADPS = np.geomspace(0.5, 20.0, 15)
+#: Speed-loop delays tried [s].
+SPEED_DELAYS_S = np.arange(-0.05, 0.2001, GRID_DT_S)
+#: Acceleration limits tried [m/s^2].
+SPEED_AMAX_MPS2 = np.geomspace(1.0, 30.0, 36)
+#: Fitted tyre parameters per model (overlay field names; ``steering_offset_rad`` extra).
+TYRE_PARAMETERS: dict[str, tuple[str, ...]] = {
+    "linear": ("mu_cornering_stiffness_front_per_rad", "mu_cornering_stiffness_rear_per_rad"),
+    "linear_saturated": (
+        "cornering_stiffness_front_per_rad", "cornering_stiffness_rear_per_rad", "mu"),
+    "pacejka": ("pacejka_front_B", "pacejka_front_C", "pacejka_front_D",
+                "pacejka_rear_B", "pacejka_rear_C", "pacejka_rear_D"),
+}
+#: Bounds of the tyre parameters (clipped in the search).
+_TYRE_BOUNDS = {"B": (0.5, 100.0), "C": (0.3, 2.9), "D": (0.05, 3.0), "k": (0.1, 200.0),
+                "mu": (0.05, 3.0)}
+
+NUMPY_OPS = Ops(cos=np.cos, sin=np.sin, tan=np.tan, atan=np.arctan, atan2=np.arctan2,
+                sqrt=np.sqrt, fmin=np.minimum, fmax=np.maximum, fabs=np.abs)
+
+
+class SysidError(ValueError):
+    """A recording that cannot be identified; the message is one line naming why."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One identified parameter.
+
+    Attributes:
+        name: the ``[vehicle]`` field (or a sysid-only name such as ``steering_delay_s``).
+        value: the estimate (a bound or the base car's value when not identifiable).
+        sigma: its 1-sigma uncertainty (inf: the run does not tell).
+        identifiable: whether this run tells it (module docstring).
+        unit: its unit.
+        note: why not identifiable, or what bounds it.
+    """
+
+    name: str
+    value: float
+    sigma: float
+    identifiable: bool
+    unit: str = ""
+    note: str = ""
+
+
+@dataclass
+class SysidResult:
+    """All estimates plus what the figure shows (grid time and measured / predicted)."""
+
+    model: str
+    estimates: dict[str, Estimate]
+    duration_s: float
+    t_s: np.ndarray
+    curves: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    fit_info: dict[str, Any] = field(default_factory=dict)
+
+    def vehicle_overlay(self, base: DynamicVehicleParams) -> dict[str, Any]:
+        """The ``[vehicle]`` fields of the identified car: the identifiable estimates, the
+        base car's values for the rest (``tyre_model`` the fitted model)."""
+        e = {k: v for k, v in self.estimates.items()
+             if v.identifiable or v.note.startswith(PRODUCT_ONLY)}
+        out: dict[str, Any] = {"tyre_model": self.model}
+        if base.preset != "f1tenth_gym":
+            out["preset"] = base.preset
+        for name in ("speed_gain_accel_per_s", "speed_gain_brake_per_s", "accel_max_mps2",
+                     "steering_time_constant_s"):
+            if name in e:
+                out[name] = _round(e[name].value)
+        if "steering_rate_max_radps" in e:
+            rate = _round(e["steering_rate_max_radps"].value)
+            out["steering_rate_max_radps"] = rate
+            out["steering_rate_min_radps"] = -rate
+        if self.model == "linear":
+            for axle in ("front", "rear"):
+                k = e.get(f"mu_cornering_stiffness_{axle}_per_rad")
+                if k is not None:
+                    out[f"cornering_stiffness_{axle}_per_rad"] = _round(k.value / base.mu)
+        elif self.model == "linear_saturated":
+            for name in TYRE_PARAMETERS["linear_saturated"]:
+                if name in e:
+                    out[name] = _round(e[name].value)
+        else:
+            out["mu"] = 1.0
+            for axle in ("front", "rear"):
+                coeffs = list(base.pacejka_front if axle == "front" else base.pacejka_rear)
+                for i, letter in enumerate("BCD"):
+                    est = e.get(f"pacejka_{axle}_{letter}")
+                    if est is not None:
+                        coeffs[i] = _round(est.value)
+                out[f"pacejka_{axle}"] = coeffs
+        return out
+
+
+def _round(x: float) -> float:
+    """4 significant digits (what the data can tell, at best)."""
+    return float(f"{x:.4g}")
+
+
+# ------------------------------------------------------------------ resampling and checks
+@dataclass(frozen=True)
+class Grid:
+    """The signals on one uniform grid (``GRID_DT_S``); `ok` marks samples with every
+    measured signal present (no gap longer than ``MAX_GAP_S``)."""
+
+    t: np.ndarray
+    cmd_v: np.ndarray
+    cmd_d: np.ndarray
+    v: np.ndarray
+    d: np.ndarray
+    r: np.ndarray
+    ax: np.ndarray
+    ay: np.ndarray
+    ok: np.ndarray
+
+
+def _clean(name: str, series: Any) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        t, v = (np.asarray(x, dtype=float).ravel() for x in series)
+    except (TypeError, ValueError):
+        raise SysidError(f"signal {name} is not a (time, value) pair of arrays") from None
+    keep = np.isfinite(t) & np.isfinite(v)
+    t, v = t[keep], v[keep]
+    order = np.argsort(t, kind="stable")
+    t, v = t[order], v[order]
+    if len(t) < 2:
+        raise SysidError(f"signal {name} has {len(t)} samples (needs a series)")
+    return t, v
+
+
+def resample(signals: Mapping[str, Any], dt: float = GRID_DT_S) -> Grid:
+    """The signals on a uniform grid over the time all of them cover: measurements
+    linearly interpolated, commands held (zero-order hold: the last command at or before
+    each grid time).
+
+    Raises:
+        SysidError: a signal missing or too short, or their overlap under MIN_DURATION_S.
+    """
+    missing = [k for k in SIGNALS if k not in signals]
+    if missing:
+        raise SysidError(f"missing signals: {', '.join(missing)}")
+    s = {k: _clean(k, signals[k]) for k in SIGNALS}
+    t0 = max(t[0] for t, _ in s.values())
+    t1 = min(t[-1] for t, _ in s.values())
+    if t1 - t0 < MIN_DURATION_S:
+        raise SysidError(f"too short: the signals overlap for {max(t1 - t0, 0.0):.1f} s, "
+                         f"at least {MIN_DURATION_S:.0f} s are needed")
+    t = t0 + dt * np.arange(int((t1 - t0) / dt) + 1)
+    ok = np.ones(len(t), dtype=bool)
+
+    def held(name: str) -> np.ndarray:
+        ts, vs = s[name]
+        i = np.searchsorted(ts, t + 1e-9, side="right") - 1
+        return vs[np.clip(i, 0, len(vs) - 1)]
+
+    def interp(name: str) -> np.ndarray:
+        ts, vs = s[name]
+        i = np.clip(np.searchsorted(ts, t), 1, len(ts) - 1)
+        ok[(ts[i] - ts[i - 1]) > MAX_GAP_S] = False
+        return np.interp(t, ts, vs)
+
+    return Grid(t, held("cmd_speed_mps"), held("cmd_steering_rad"), interp("speed_mps"),
+                interp("steering_rad"), interp("yaw_rate_radps"), interp("ax_mps2"),
+                interp("ay_mps2"), ok)
+
+
+def check_cornering(g: Grid) -> None:
+    """Raise ``SysidError`` when the run has (almost) no cornering to fit tyres on."""
+    share = float(np.mean(np.abs(g.ay[g.ok]) > CORNER_AY_MPS2)) if g.ok.any() else 0.0
+    if share < MIN_CORNER_SHARE:
+        raise SysidError(
+            f"no cornering: |a_y| exceeds {CORNER_AY_MPS2:g} m/s^2 in {100 * share:.1f} % of "
+            f"the run (at least {100 * MIN_CORNER_SHARE:.0f} % needed to fit the tyres)")
+
+
+def noise_std(x: np.ndarray) -> float:
+    """White-noise level of a smooth signal sampled densely: ``MAD(diff) / 0.6745 / sqrt 2``."""
+    d = np.diff(x)
+    if len(d) == 0:
+        return 0.0
+    return float(np.median(np.abs(d - np.median(d))) / 0.6745 / math.sqrt(2.0))
+
+
+def _n_eff_factor(res: np.ndarray) -> float:
+    """``n / n_eff`` of residuals from their lag-1 autocorrelation (>= 1)."""
+    res = np.asarray(res, dtype=float).ravel()
+    if len(res) < 3 or not np.any(res):
+        return 1.0
+    rho = float(np.corrcoef(res[:-1], res[1:])[0, 1])
+    if not math.isfinite(rho):
+        return 1.0
+    rho = min(max(rho, 0.0), 0.999)
+    return (1.0 + rho) / (1.0 - rho)
+
+
+def _profile_sigma(x: np.ndarray, sse: np.ndarray, s2: float) -> tuple[float, float, bool]:
+    """(vertex, sigma, interior) of a parabola through a profile `sse` over grid `x` at
+    its minimum; sigma from ``SSE = SSE_min + (x - x0)^2 s2 / sigma^2``, inf when flat
+    or at an edge (then the vertex is the grid minimum)."""
+    i = int(np.argmin(sse))
+    if i == 0 or i == len(x) - 1:
+        return float(x[i]), math.inf, False
+    x3, y3 = x[i - 1:i + 2], sse[i - 1:i + 2]
+    a, b, _c = np.polyfit(x3, y3, 2)
+    if not a > 0:
+        return float(x[i]), math.inf, True
+    x0 = float(np.clip(-b / (2 * a), x3[0], x3[2]))
+    return x0, math.sqrt(s2 / a), True
+
+
+# ------------------------------------------------------------------ steering
+def simulate_servo(
+    g: Grid, delay_s: np.ndarray, tau_s: np.ndarray, rate_radps: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(SSE per candidate, predicted angle of the first candidate (n,)) of the servo model
+    (module docstring) for candidate arrays of equal shape (delay on the grid's steps)."""
+    dt = float(g.t[1] - g.t[0])
+    shape = np.shape(delay_s)
+    lag = np.rint(np.ravel(delay_s) / dt).astype(int)
+    gain = 1.0 - np.exp(-dt / np.ravel(tau_s))
+    step = np.ravel(rate_radps) * dt
+    n = len(g.t)
+    delta = np.full(lag.shape, g.d[0])
+    sse = np.zeros(lag.shape)
+    first = np.empty(n)
+    cmd, meas, ok = g.cmd_d, g.d, g.ok
+    idx = np.arange(n)
+    for k in range(n):
+        if ok[k]:
+            e = delta - meas[k]
+            sse += e * e
+        first[k] = delta[0]
+        target = cmd[np.clip(idx[k] - lag, 0, n - 1)]
+        delta = delta + np.clip((target - delta) * gain, -step, step)
+    return sse.reshape(shape), first
+
+
+def fit_steering(g: Grid, base: DynamicVehicleParams) -> tuple[dict[str, Estimate], np.ndarray]:
+    """Steering delay, time constant and rate limit (module docstring); also the predicted
+    road-wheel angle on the grid."""
+    dt = float(g.t[1] - g.t[0])
+    dd, tt, rr = np.meshgrid(STEER_DELAYS_S, STEER_TAUS_S, STEER_RATES_RADPS, indexing="ij")
+    sse, _ = simulate_servo(g, dd, tt, rr)
+    i, j, k = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    # finer grid around the coarse optimum: delay on the grid step, tau and rate in log
+    fd = STEER_DELAYS_S[max(i - 2, 0):i + 3]
+    ft = np.geomspace(STEER_TAUS_S[max(j - 1, 0)], STEER_TAUS_S[min(j + 1, 14)], 9)
+    fr = np.geomspace(STEER_RATES_RADPS[max(k - 1, 0)], STEER_RATES_RADPS[min(k + 1, 14)], 9)
+    dd, tt, rr = np.meshgrid(fd, ft, fr, indexing="ij")
+    sse_f, _ = simulate_servo(g, dd, tt, rr)
+    i2, j2, k2 = np.unravel_index(int(np.argmin(sse_f)), sse_f.shape)
+    best = (fd[i2], ft[j2], fr[k2])
+    _, pred = simulate_servo(g, np.array([best[0]]), np.array([best[1]]), np.array([best[2]]))
+    res = (pred - g.d)[g.ok]
+    n = len(res)
+    s2 = float(np.sum(res * res)) / max(n - 3, 1) * _n_eff_factor(res)
+    out: dict[str, Estimate] = {}
+    # delay: the coarse profile (min over tau, rate) around the optimum
+    prof_d = sse.min(axis=(1, 2))
+    d0, sd, interior = _profile_sigma(STEER_DELAYS_S, prof_d, s2)
+    d0 = best[0] if abs(d0 - best[0]) > dt else d0
+    sd = max(sd, dt / math.sqrt(12.0)) if interior else math.inf
+    out["steering_delay_s"] = _estimate("steering_delay_s", d0, sd, "s",
+                                        "" if interior else "at the edge of the delays tried")
+    prof_t = sse_f.min(axis=(0, 2))
+    lt, st_, interior_t = _profile_sigma(np.log(ft), prof_t, s2)
+    tau_note = "" if interior_t else "the servo's lag is shorter than the data resolve"
+    rel_t = st_
+    if not interior_t:
+        prof_t = sse.min(axis=(0, 2))
+        lt, rel_t, interior_t = _profile_sigma(np.log(STEER_TAUS_S), prof_t, s2)
+        tau_note = "" if interior_t else tau_note
+    tau_hat = math.exp(lt)
+    if tau_hat < 2.0 * dt:  # a lag of a grid step or two: an upper bound, good enough
+        out["steering_time_constant_s"] = Estimate(
+            "steering_time_constant_s", tau_hat, max(tau_hat * rel_t, dt), True, "s",
+            f"below the data's resolution of {2 * dt:g} s: the servo is rate-limited")
+    else:
+        out["steering_time_constant_s"] = _estimate(
+            "steering_time_constant_s", tau_hat, tau_hat * rel_t, "s", tau_note)
+    # rate limit: identifiable only if the fitted servo actually runs into it
+    tau, rate = best[1], best[2]
+    dt_rate = np.abs(np.diff(pred)) / dt
+    at_limit = float(np.mean(dt_rate > 0.98 * rate))
+    prof_r = sse_f.min(axis=(0, 1))
+    lr_, sr, interior_r = _profile_sigma(np.log(fr), prof_r, s2)
+    if not interior_r:
+        prof_r = sse.min(axis=(0, 1))
+        lr_, sr, interior_r = _profile_sigma(np.log(STEER_RATES_RADPS), prof_r, s2)
+    seen = float(np.max(np.abs(np.diff(g.d))) / dt)
+    if at_limit < 0.005:
+        out["steering_rate_max_radps"] = Estimate(
+            "steering_rate_max_radps", max(seen, rate), math.inf, False, "rad/s",
+            f"never reached: at least {seen:.2f} rad/s seen")
+    else:
+        out["steering_rate_max_radps"] = _estimate(
+            "steering_rate_max_radps", math.exp(lr_), math.exp(lr_) * sr, "rad/s",
+            "" if interior_r else "at the edge of the grid")
+    del tau
+    return out, pred
+
+
+def _estimate(name: str, value: float, sigma: float, unit: str, note: str = "") -> Estimate:
+    rel = sigma / abs(value) if value else math.inf
+    ok = not note and math.isfinite(sigma) and rel <= IDENTIFIABLE_REL_SIGMA
+    if not note and not ok:
+        note = f"uncertainty {100 * rel:.0f} % of the value" if math.isfinite(rel) else \
+            "the run does not constrain it"
+    return Estimate(name, float(value), float(sigma), ok, unit, note)
+
+
+# ------------------------------------------------------------------ speed loop
+def derivative(x: np.ndarray, dt: float, half: int = 4) -> np.ndarray:
+    """Linear-phase derivative [unit/s]: the slope of a least-squares line over
+    ``2 half + 1`` samples (edges: the nearest full window's)."""
+    k = np.arange(-half, half + 1, dtype=float)
+    w = k / (np.sum(k * k) * dt)
+    d = np.convolve(x, w[::-1], mode="same")
+    d[:half], d[-half:] = d[half], d[-half - 1]
+    return d
+
+
+def _accel_limit(v: np.ndarray, base: DynamicVehicleParams, a_max: float) -> np.ndarray:
+    return a_max * np.minimum(1.0, base.v_switch_mps / np.maximum(np.abs(v), 1e-3))
+
+
+def fit_speed(g: Grid, base: DynamicVehicleParams, xdrag: np.ndarray | None = None,
+              known: np.ndarray | None = None,
+              ) -> tuple[dict[str, Estimate], np.ndarray, np.ndarray]:
+    """Speed-loop gains, delay and acceleration limit (module docstring); also the
+    measured and the predicted acceleration demand on the grid. The measured demand is
+    the IMU's ``a_x`` (``F_X / m`` of the body) less `xdrag`, the tyres' part of it
+    (``fit_tyres``: the front axle's lateral force along the body when it steers);
+    without `xdrag`, ``a_x`` itself. `known`: the samples where `xdrag` is known (the
+    others are not used).
+
+    For each (delay, a_max) of a grid the gains are the least squares over the samples the
+    loop does not saturate (two passes); the sum of squares over all samples picks both.
+    """
+    dt = float(g.t[1] - g.t[0])
+    a = g.ax if xdrag is None else g.ax - np.nan_to_num(xdrag)
+    ok = g.ok & (np.abs(g.v) > 0.3)
+    if known is not None:
+        ok &= known
+    n = len(g.t)
+    idx = np.arange(n)
+    scale = np.minimum(1.0, base.v_switch_mps / np.maximum(np.abs(g.v), 1e-3))
+    y = a[ok]
+    sse = np.full((len(SPEED_DELAYS_S), len(SPEED_AMAX_MPS2)), np.inf)
+    fits: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    for i, delay in enumerate(SPEED_DELAYS_S):
+        e = (g.cmd_v[np.clip(idx - round(delay / dt), 0, n - 1)] - g.v)[ok]
+        grow = ((e > 0) & (g.v[ok] >= 0)) | ((e < 0) & (g.v[ok] <= 0))
+        for j, a_max in enumerate(SPEED_AMAX_MPS2):
+            lim = a_max * scale[ok]
+            k = np.array([base.speed_gain_accel_per_s, base.speed_gain_brake_per_s])
+            for _ in range(2):
+                use = np.abs(np.where(grow, k[0], k[1]) * e) < 0.9 * lim
+                X = np.stack([np.where(grow & use, e, 0.0), np.where(~grow & use, e, 0.0)], 1)
+                coef = np.linalg.lstsq(X[use], y[use], rcond=None)[0]
+                k = np.where(coef > 0.05, coef, k)
+            pred = np.clip(np.where(grow, k[0], k[1]) * e, -lim, lim)
+            res = y - pred
+            sse[i, j] = float(res @ res)
+            fits[(i, j)] = (k, X[use])
+    i, j = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    k, X = fits[(i, j)]
+    delay, a_max = SPEED_DELAYS_S[i], SPEED_AMAX_MPS2[j]
+    e_all = g.cmd_v[np.clip(idx - round(delay / dt), 0, n - 1)] - g.v
+    grow_all = ((e_all > 0) & (g.v >= 0)) | ((e_all < 0) & (g.v <= 0))
+    lim_all = a_max * scale
+    pred = np.clip(np.where(grow_all, k[0], k[1]) * e_all, -lim_all, lim_all)
+    res = (a - pred)[ok]
+    m = len(res)
+    s2 = float(res @ res) / max(m - 4, 1) * _n_eff_factor(res)
+    cov = s2 * np.linalg.pinv(X.T @ X)
+    out: dict[str, Estimate] = {}
+    for c, name in enumerate(("speed_gain_accel_per_s", "speed_gain_brake_per_s")):
+        used = int(np.sum(X[:, c] != 0))
+        if used < 50:
+            out[name] = Estimate(name, getattr(base, name), math.inf, False, "1/s",
+                                 f"only {used} unsaturated samples")
+        else:
+            out[name] = _estimate(name, float(k[c]), math.sqrt(max(cov[c, c], 0.0)), "1/s")
+    d0, sd, interior = _profile_sigma(SPEED_DELAYS_S, sse.min(axis=1), s2)
+    sd = max(sd, dt / math.sqrt(12.0)) if interior else math.inf
+    out["speed_delay_s"] = _estimate("speed_delay_s", d0, sd, "s",
+                                     "" if interior else "at the edge of the delays tried")
+    if sd < 0.5 * dt and interior:  # a delay of ~0 has an ill-defined relative sigma
+        out["speed_delay_s"] = Estimate("speed_delay_s", d0, sd, True, "s")
+    saturated = ok & (np.abs(np.where(grow_all, k[0], k[1]) * e_all) > lim_all)
+    n_sat = int(np.sum(saturated))
+    la, sa, interior_a = _profile_sigma(np.log(SPEED_AMAX_MPS2), sse.min(axis=0), s2)
+    seen = float(np.max(np.abs(a[ok]))) if ok.any() else 0.0
+    if n_sat < 20 or not interior_a:
+        out["accel_max_mps2"] = Estimate(
+            "accel_max_mps2", max(seen, a_max if interior_a else seen), math.inf, False,
+            "m/s^2", f"never reached: at least {seen:.2f} m/s^2 seen")
+    else:
+        out["accel_max_mps2"] = _estimate("accel_max_mps2", math.exp(la), math.exp(la) * sa,
+                                          "m/s^2")
+    return out, a, np.where(ok, pred, np.nan)
+
+
+# ------------------------------------------------------------------ tyres
+def _windows(g: Grid) -> np.ndarray:
+    """Start indices of the tyre-fit windows (module docstring), at most MAX_WINDOWS."""
+    dt = float(g.t[1] - g.t[0])
+    w = round(WINDOW_S / dt)
+    good = g.ok & (g.v > MIN_SPEED_MPS)
+    starts, k = [], 0
+    bad = np.flatnonzero(~good)
+    while k + w <= len(g.t):
+        nxt = bad[np.searchsorted(bad, k):]
+        if len(nxt) and nxt[0] < k + w:
+            k = int(nxt[0]) + 1
+            continue
+        starts.append(k)
+        k += w
+    starts = np.asarray(starts, dtype=int)
+    if len(starts) > MAX_WINDOWS:
+        starts = starts[np.linspace(0, len(starts) - 1, MAX_WINDOWS).round().astype(int)]
+    return starts
+
+
+def _params_from(theta: np.ndarray, model: str, base: DynamicVehicleParams
+                 ) -> tuple[DynamicVehicleParams, float]:
+    """(vehicle, steering offset [rad]) of a parameter vector (logs, then the offset)."""
+    x = np.exp(theta[:-1])
+    if model == "linear":
+        upd = {"cornering_stiffness_front_per_rad": x[0] / base.mu,
+               "cornering_stiffness_rear_per_rad": x[1] / base.mu}
+    elif model == "linear_saturated":
+        upd = {"cornering_stiffness_front_per_rad": x[0],
+               "cornering_stiffness_rear_per_rad": x[1], "mu": x[2]}
+    else:
+        upd = {"mu": 1.0, "pacejka_front": (x[0], x[1], x[2], base.pacejka_front[3]),
+               "pacejka_rear": (x[3], x[4], x[5], base.pacejka_rear[3])}
+    return base.model_copy(update={"tyre_model": model, **upd}), float(theta[-1])
+
+
+def _theta0(model: str, base: DynamicVehicleParams) -> np.ndarray:
+    if model == "linear":
+        x = [base.mu * base.cornering_stiffness_front_per_rad,
+             base.mu * base.cornering_stiffness_rear_per_rad]
+    elif model == "linear_saturated":
+        x = [base.cornering_stiffness_front_per_rad, base.cornering_stiffness_rear_per_rad,
+             base.mu]
+    else:
+        x = [*base.pacejka_front[:3], *base.pacejka_rear[:3]]
+    return np.array([*np.log(x), 0.0])
+
+
+def _bounds(model: str) -> tuple[np.ndarray, np.ndarray]:
+    keys = {"linear": "kk", "linear_saturated": ["k", "k", "mu"],
+            "pacejka": "BCDBCD"}[model]
+    lo = [math.log(_TYRE_BOUNDS[k][0]) for k in keys] + [-0.1]
+    hi = [math.log(_TYRE_BOUNDS[k][1]) for k in keys] + [0.1]
+    return np.array(lo), np.array(hi)
+
+
+def _rear_small_slip(p: DynamicVehicleParams) -> float:
+    if p.tyre_model == "pacejka":
+        b, c, d, _e = p.pacejka_rear
+        return p.mu * b * c * d
+    return p.mu * p.cornering_stiffness_rear_per_rad
+
+
+class Lateral(NamedTuple):
+    """``simulate_lateral``'s prediction, each (windows, w): yaw rate [rad/s], lateral
+    acceleration [m/s^2], the tyres' drag on the speed ``v' - a`` and on the body's
+    longitudinal acceleration ``F_X / m - a`` [m/s^2], whether an axle is at its friction
+    limit (Pacejka: past 70 % of its peak slip)."""
+
+    r: np.ndarray
+    ay: np.ndarray
+    drag: np.ndarray
+    xdrag: np.ndarray
+    sat: np.ndarray
+
+
+def beta_start(g: Grid, starts: np.ndarray, p: DynamicVehicleParams) -> np.ndarray:
+    """The linear model's steady-state slip angle [rad] at each window's start, from the
+    measured yaw rate and speed: ``beta = l_r r / v - v r / (g k_r)``."""
+    r, v = g.r[starts], g.v[starts]
+    return p.lr_m * r / v - v * r / (GRAVITY_MPS2 * _rear_small_slip(p))
+
+
+def simulate_lateral(
+    g: Grid, starts: np.ndarray, p: DynamicVehicleParams, offset_rad: float,
+    a_in: np.ndarray | None = None, beta0: np.ndarray | None = None,
+) -> Lateral:
+    """The single-track model over the windows starting at `starts` (module docstring);
+    `a_in`: the acceleration demand on the grid (None: the measured ``a_x``); `beta0`:
+    each window's initial slip angle [rad] (None: ``beta_start``)."""
+    dt = float(g.t[1] - g.t[0])
+    w = round(WINDOW_S / dt)
+    idx = starts[:, None] + np.arange(w)[None, :]
+    v, d = g.v[idx], g.d[idx] + offset_rad
+    a = (g.ax if a_in is None else a_in)[idx]
+    f = make_dynamic_derivatives(p, NUMPY_OPS, raw=True)
+    m, linear = p.mass_kg, p.tyre_model == "linear"
+    r = g.r[idx[:, 0]].copy()
+    beta = beta_start(g, starts, p) if beta0 is None else np.asarray(beta0, dtype=float)
+    r_out = np.empty_like(v)
+    ay_out = np.empty_like(v)
+    drag_out = np.empty_like(v)
+    xdrag_out = np.zeros_like(v)
+    sat_out = np.zeros_like(v, dtype=bool)
+    if p.tyre_model == "pacejka":
+        peak_f = pacejka_peak_slip_rad(p, "front")
+        peak_r = pacejka_peak_slip_rad(p, "rear")
+
+    def saturated(front: tuple, rear: tuple) -> np.ndarray:
+        if linear:
+            return np.zeros(len(front[1]), dtype=bool)
+        if p.tyre_model == "pacejka":
+            return (np.abs(front[3]) > 0.7 * peak_f) | (np.abs(rear[3]) > 0.7 * peak_r)
+        return (np.abs(front[1]) >= 0.999 * front[2]) | (np.abs(rear[1]) >= 0.999 * rear[2])
+
+    def lateral(front: tuple, rear: tuple, dk: np.ndarray) -> np.ndarray:
+        if linear:
+            return (front[1] + rear[1]) / m
+        return (front[0] * np.sin(dk) + front[1] * np.cos(dk) + rear[1]) / m
+
+    for k in range(w):
+        # the odometry's wheel speed is v cos(beta): the model's v is the CoG speed
+        vk, dk, ak = v[:, k] / np.cos(beta), d[:, k], a[:, k]
+        _dv, db, dr, fr, rr = f(vk, beta, r, dk, ak)
+        r_out[:, k] = r
+        ay_out[:, k] = lateral(fr, rr, dk)
+        drag_out[:, k] = _dv - ak
+        if not linear:
+            cd, sd = np.cos(dk), np.sin(dk)
+            xdrag_out[:, k] = (fr[0] * cd - fr[1] * sd + rr[0]) / m - ak
+        sat_out[:, k] = saturated(fr, rr)
+        if k + 1 < w:
+            b_mid = beta + 0.5 * dt * db
+            vm = 0.5 * (v[:, k] + v[:, k + 1]) / np.cos(b_mid)
+            dm, am = 0.5 * (dk + d[:, k + 1]), 0.5 * (ak + a[:, k + 1])
+            _dv, db2, dr2, _f, _r = f(vm, b_mid, r + 0.5 * dt * dr, dm, am)
+            beta = np.clip(beta + dt * db2, -0.8, 0.8)
+            r = np.clip(r + dt * dr2, -20.0, 20.0)
+    return Lateral(r_out, ay_out, drag_out, xdrag_out, sat_out)
+
+
+def fit_tyres(
+    g: Grid, base: DynamicVehicleParams, model: str, iterations: int = 30,
+    a_in: np.ndarray | None = None, theta_start: np.ndarray | None = None,
+    starts: np.ndarray | None = None, fit_beta0: bool = False,
+) -> tuple[dict[str, Estimate], dict[str, np.ndarray], dict[str, Any]]:
+    """The tyre parameters of `model` and the steering offset (module docstring); also the
+    predicted yaw rate, lateral acceleration and drags on the grid (NaN / 0 outside the
+    windows) and whether the tyres' drag is known there (``known``: inside a window, or too
+    slow and straight for any). `a_in`: the acceleration demand (None: the measured a_x);
+    `theta_start`: the start of the search (a previous fit's ``info["theta"]``); `starts`:
+    the windows (None: ``_windows``); `fit_beta0`: fit each window's initial slip angle too
+    (else the linear steady state of the current parameters). ``info["window_rms"]``: each
+    window's rms residual (noise units)."""
+    if model not in TYRE_PARAMETERS:
+        raise SysidError(f"unknown tyre model {model!r} (linear, linear_saturated, pacejka)")
+    starts = _windows(g) if starts is None else starts
+    dt = float(g.t[1] - g.t[0])
+    w = round(WINDOW_S / dt)
+    burn = round(BURN_IN_S / dt)
+    if len(starts) < 5:
+        raise SysidError(f"too little driving above {MIN_SPEED_MPS:g} m/s: {len(starts)} "
+                         f"windows of {WINDOW_S:g} s (at least 5 needed to fit the tyres)")
+    idx = starts[:, None] + np.arange(burn, w)[None, :]
+    r_meas, ay_meas = g.r[idx], g.ay[idx]
+    sig_r = max(noise_std(g.r[g.ok]), 0.02)
+    sig_ay = max(noise_std(g.ay[g.ok]), 0.1)
+    lo, hi = _bounds(model)
+
+    n_s, n_g = w - burn, len(lo)
+    n_w = len(starts) if fit_beta0 else 0
+    # with fit_beta0 every window's initial slip angle is a parameter too (its columns of
+    # the Jacobian come from one simulation: the windows do not interact)
+    lo = np.concatenate([lo, np.full(n_w, -0.6)])
+    hi = np.concatenate([hi, np.full(n_w, 0.6)])
+    rows = np.arange(n_w * n_s).reshape(n_w, n_s)
+    win_rows = np.concatenate([rows, rows + n_w * n_s], axis=1)  # (n_w, 2 n_s)
+
+    def residuals(theta: np.ndarray) -> np.ndarray:
+        p, off = _params_from(theta[:n_g], model, base)
+        pred = simulate_lateral(g, starts, p, off, a_in, theta[n_g:] if n_w else None)
+        r_p, ay_p = pred.r, pred.ay
+        return np.concatenate([((r_p[:, burn:] - r_meas) / sig_r).ravel(),
+                               ((ay_p[:, burn:] - ay_meas) / sig_ay).ravel()])
+
+    def jacobian(theta: np.ndarray, res: np.ndarray) -> np.ndarray:
+        J = np.zeros((len(res), len(theta)))
+        for i in range(n_g):
+            th = theta.copy()
+            th[i] += steps[i]
+            J[:, i] = (residuals(th) - res) / steps[i]
+        if n_w:
+            th = theta.copy()
+            th[n_g:] += BETA0_STEP_RAD
+            d = (residuals(th) - res) / BETA0_STEP_RAD
+            J[win_rows, n_g + np.arange(n_w)[:, None]] = d[win_rows]
+        return J
+
+    theta_g = _theta0(model, base) if theta_start is None else theta_start
+    p0, _off0 = _params_from(theta_g, model, base)
+    beta0 = beta_start(g, starts, p0) if n_w else np.zeros(0)
+    theta = np.clip(np.concatenate([theta_g, beta0]), lo, hi)
+    res = residuals(theta)
+    cost = float(res @ res)
+    lam = 1e-2
+    steps = np.full(n_g, 1e-3)
+    steps[-1] = 1e-4
+    rel = 1.0
+    for _it in range(iterations):
+        J = jacobian(theta, res)
+        JtJ, Jtr = J.T @ J, J.T @ res
+        improved = False
+        for _ in range(8):
+            A = JtJ + lam * np.diag(np.maximum(np.diag(JtJ), 1e-9))
+            step = -np.linalg.lstsq(A, Jtr, rcond=None)[0]
+            cand = np.clip(theta + step, lo, hi)
+            res_c = residuals(cand)
+            cost_c = float(res_c @ res_c)
+            if np.isfinite(cost_c) and cost_c < cost:
+                rel = (cost - cost_c) / cost
+                theta, res, cost = cand, res_c, cost_c
+                lam = max(lam / 3.0, 1e-7)
+                improved = True
+                break
+            lam *= 4.0
+        if not improved or rel < 1e-6:
+            break
+    J = jacobian(theta, res)  # at the optimum
+    n_r = idx.size
+    s2 = cost / max(len(res) - len(theta), 1)
+    infl = max(_n_eff_factor(res[:n_r]), _n_eff_factor(res[n_r:]))
+    cov = s2 * infl * np.linalg.pinv(J.T @ J, rcond=1e-10)
+    sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    names = TYRE_PARAMETERS[model]
+    p_hat, off = _params_from(theta[:n_g], model, base)
+    pred = simulate_lateral(g, starts, p_hat, off, a_in, theta[n_g:] if n_w else None)
+    r_p, ay_p, sat = pred.r, pred.ay, pred.sat
+    out: dict[str, Estimate] = {}
+    sat_share = float(np.mean(sat[:, burn:]))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sig, sig)
+    for i, name in enumerate(names):
+        val = float(math.exp(theta[i]))
+        sigma = val * float(sig[i]) if np.isfinite(sig[i]) else math.inf
+        note = ""
+        if theta[i] <= lo[i] + 1e-9 or theta[i] >= hi[i] - 1e-9:
+            note = "at its search bound"
+        elif (name == "mu" or name.endswith("_D")) and sat_share < 0.005:
+            note = f"friction never used up ({100 * sat_share:.1f} % of the samples at it)"
+        elif name[-2:] in ("_B", "_C"):
+            j = i + 1 if name.endswith("_B") else i - 1  # its partner C or B
+            rho = float(abs(corr[i, j]))
+            if rho > BC_CORRELATION_MAX:
+                note = f"{PRODUCT_ONLY} (correlation of B and C {rho:.2f})"
+        out[name] = _estimate(name, val, sigma, "1/rad" if "stiffness" in name else "", note)
+    s_off = float(sig[n_g - 1])
+    out["steering_offset_rad"] = Estimate("steering_offset_rad", off, s_off, s_off < 0.01,
+                                          "rad", "" if s_off < 0.01 else "not resolved")
+    r_full = np.full(len(g.t), np.nan)
+    ay_full = np.full(len(g.t), np.nan)
+    full = starts[:, None] + np.arange(burn, w)[None, :]
+    r_full[full] = r_p[:, burn:]
+    ay_full[full] = ay_p[:, burn:]
+    known = (np.abs(g.v) < MIN_SPEED_MPS) & (np.abs(g.ay) < CORNER_AY_MPS2)
+    known[full] = True
+    drag_full = np.zeros(len(g.t))
+    drag_full[full] = pred.drag[:, burn:]
+    xdrag_full = np.zeros(len(g.t))
+    xdrag_full[full] = pred.xdrag[:, burn:]
+    info = {"windows": len(starts), "rms_yaw_rate_radps": float(np.sqrt(np.mean(
+        (r_p[:, burn:] - r_meas) ** 2))), "rms_ay_mps2": float(np.sqrt(np.mean(
+            (ay_p[:, burn:] - ay_meas) ** 2))), "noise_yaw_rate_radps": sig_r,
+            "noise_ay_mps2": sig_ay, "at_friction_limit_share": sat_share,
+            "theta": theta[:n_g], "starts": starts, "window_rms": np.sqrt(np.mean(
+                (((r_p[:, burn:] - r_meas) / sig_r) ** 2 + ((ay_p[:, burn:] - ay_meas)
+                                                             / sig_ay) ** 2) / 2, axis=1))}
+    return out, {"yaw_rate": r_full, "ay": ay_full, "drag": drag_full,
+                 "xdrag": xdrag_full, "known": known}, info
+
+
+# ------------------------------------------------------------------ all together
+def identify(signals: Mapping[str, Any], base: DynamicVehicleParams,
+             model: str = "linear_saturated") -> SysidResult:
+    """Identify the steering, the speed loop and the tyres of `model` from a run's
+    `signals` (``SIGNALS``), geometry and mass from `base` (module docstring).
+
+    Raises:
+        SysidError: one line naming what the run lacks.
+    """
+    if model not in TYRE_PARAMETERS:
+        raise SysidError(f"unknown tyre model {model!r} (linear, linear_saturated, pacejka)")
+    g = resample(signals)
+    check_cornering(g)
+    est: dict[str, Estimate] = {}
+    steer, d_pred = fit_steering(g, base)
+    # pass 1 with the measured a_x as the demand, pass 2 with the tyres' drag taken out of
+    # it (the load transfer and the friction ellipse follow the demand)
+    # it (the load transfer and the friction ellipse follow the demand), without the
+    # windows the model fits worst (spins, recoveries: rms over OUTLIER_RMS x the median)
+    _t, lat1, info1 = fit_tyres(g, base, model)
+    rms = info1["window_rms"]
+    keep = info1["starts"][rms <= OUTLIER_RMS * np.median(rms)]
+    tyres, lat_pred, info = fit_tyres(g, base, model, 12, g.ax - lat1["xdrag"],
+                                      info1["theta"], keep)
+    info["windows_dropped"] = len(rms) - len(keep)
+    for k in ("theta", "starts", "window_rms"):
+        info.pop(k)
+    speed, a_meas, a_pred = fit_speed(g, base, lat_pred["xdrag"], lat_pred["known"])
+    est.update(steer)
+    est.update(speed)
+    est.update(tyres)
+    curves = {
+        "steering_rad": (g.d, d_pred),
+        "accel_mps2": (a_meas, a_pred),
+        "yaw_rate_radps": (g.r, lat_pred["yaw_rate"]),
+        "ay_mps2": (g.ay, lat_pred["ay"]),
+    }
+    return SysidResult(model, est, float(g.t[-1] - g.t[0]), g.t - g.t[0], curves, info)
