@@ -183,8 +183,11 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap.add_argument("--model", choices=tuple(TYRE_PARAMETERS),
                     help="tyre model to fit (default: the base car's tyre_model)")
     ap.add_argument("--config", help="base configuration: geometry and mass of the car, "
-                    "the starting point of the fit, the other sections of --out")
-    ap.add_argument("--no-figure", action="store_true", help="write no PNG")
+                    "the starting point of the fit, the other sections of --out (default: the "
+                    "built-in defaults, the F1TENTH gym's car)")
+    ap.add_argument("--no-figure", action="store_true",
+                    help="write no PNG of measured against predicted signals (default: "
+                    "write it beside --out, car.toml -> car.png)")
     return ap
 
 
