@@ -16,6 +16,7 @@ matplotlib is imported only when a figure is drawn (``pyplot``).
 from __future__ import annotations
 
 import argparse
+import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,6 +140,8 @@ def save_figure(
     """
     import matplotlib
 
+    # the PDF's font subsetting logs every table it prunes at INFO: not the tool's output
+    logging.getLogger("fontTools").setLevel(logging.WARNING)
     stem = Path(stem)
     stem = stem.with_suffix("") if stem.suffix.lstrip(".").lower() in FORMATS else stem
     paths = []
