@@ -70,7 +70,8 @@ def draw_laps(runs: list[MethodRun], reference: ReferenceLine | None = None, tit
         ax.hlines(mean, pos - 0.32, pos + 0.32, color=st["color"], lw=2.2, zorder=3)
         note = f"{mean:.3f} s"
         if ref_t:
-            note += f"\n{100.0 * (mean / ref_t - 1.0):+.1f} % vs limit"
+            gap = 100.0 * (mean / ref_t - 1.0)  # two decimals near the limit
+            note += f"\n{gap:+.2f} % vs limit" if abs(gap) < 1.0 else f"\n{gap:+.1f} % vs limit"
         if t.size > 1:
             note += f"\n{plural(t.size, 'lap')}, sd {1e3 * float(np.std(t)):.0f} ms"
         ax.annotate(note, (pos, float(t.max())), xytext=(0, 6), textcoords="offset points",
@@ -117,7 +118,7 @@ def draw_laps(runs: list[MethodRun], reference: ReferenceLine | None = None, tit
             return L / np.maximum(np.asarray(t, dtype=float), 1e-9)
 
         sec = right.secondary_yaxis("right", functions=(speed, speed))
-        sec.set_ylabel(f"mean speed = centreline length ({L:.1f} m) / lap time [m/s]")
+        sec.set_ylabel(f"mean speed [m/s]\n= centreline length ({L:.1f} m) / lap time")
     legend_row(body, handles, labels, max_cols=4)
     fig.suptitle(title or "Lap times")
     return fig

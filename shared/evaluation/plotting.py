@@ -164,12 +164,19 @@ def method_style(i: int) -> dict[str, Any]:
 def legend_row(body, handles: Sequence[Any], labels: Sequence[str], max_cols: int = 4):
     """The legend as a compact row (or rows) at the top of `body` (``new_figure``'s
     subfigure): above the axes, below the figure's title, inside the figure (constrained
-    layout makes room), over no curve. None without entries."""
+    layout makes room), over no curve; as many columns (up to `max_cols`) as fit the
+    figure's width. None without entries."""
     if not handles:
         return None
-    ncol = min(len(handles), max_cols)
-    return body.legend(handles, labels, loc="outside upper center", ncol=ncol, fontsize=8,
-                      frameon=False, handlelength=3.0, columnspacing=1.6)
+    renderer = body.figure.canvas.get_renderer()
+    width = body.figure.bbox.width
+    for ncol in range(min(len(handles), max_cols), 0, -1):  # as many columns as fit
+        legend = body.legend(handles, labels, loc="outside upper center", ncol=ncol,
+                             fontsize=8, frameon=False, handlelength=3.0, columnspacing=1.6)
+        if ncol == 1 or legend.get_window_extent(renderer).width <= 0.96 * width:
+            return legend
+        legend.remove()
+    return None
 
 
 def break_gaps(

@@ -216,15 +216,19 @@ def test_fig6_grid_shape_and_zooms_on_a_long_track() -> None:
 
 def test_fig7_one_lap_says_each_method_and_what_mean_speed_is() -> None:
     track = _ellipse()
-    runs = [_run(track, "cimpcc"), _run(track, "raceline", 1, 0.02),
-            _run(track, "cimpcc-line", 1, 0.03)]
+    runs = [_run(track, "cimpcc-with-a-long-name"), _run(track, "raceline-long-name", 1, 0.02),
+            _run(track, "cimpcc-line-long-name", 1, 0.03), _run(track, "no-lap")]
+    runs[-1].laps.clear()  # raced, no lap: no column
     fig = draw_laps(runs, _reference(track), length_m=track.length_m)
     fig.canvas.draw()
+    (legend,) = fig.subfigs[0].legends  # long labels: fewer columns, never wider than it
+    ext = legend.get_window_extent()
+    assert ext.x0 >= 0 and ext.x1 <= fig.bbox.x1
     main = [ax for ax in fig.axes if ax.get_lines() or ax.collections]
     assert len(main) == 1  # one lap: the per-method panel alone
     ax = main[0]
-    assert [t.get_text() for t in ax.get_xticklabels()] == ["cimpcc", "raceline",
-                                                            "cimpcc-line"]
+    assert [t.get_text() for t in ax.get_xticklabels()] == [
+        "cimpcc-with-a-long-name", "raceline-long-name", "cimpcc-line-long-name"]
     notes = [t.get_text() for t in ax.texts]
     assert len(notes) == 3 and all("vs limit" in t for t in notes)  # close methods apart
     xs = [t.xy[0] for t in ax.texts]
@@ -260,3 +264,14 @@ def test_fig6_zooms_go_where_the_paths_part() -> None:
     (win,) = zoom_windows(track, 1, 2.0, [(s / 100.0 * L, np.zeros_like(s)),
                                             (s / 100.0 * L, far)])
     assert abs(win[0] - 0.3 * L) < 4.0
+
+
+def test_fig_all_five_draw_for_a_method_that_never_completed_a_lap(tmp_path) -> None:
+    from shared.evaluation import write_figures
+
+    track = _ellipse()
+    lost = MethodRun("mpcc", [], Trace(), [], 0, 3)
+    profile = track_profile(track, RacestackConfig().curvature)
+    paths = write_figures(tmp_path, track, profile, [lost, _run(track, "cimpcc")],
+                          formats=("svg",))
+    assert len(paths) == 5 and all(p.suffix == ".svg" for p in paths)
