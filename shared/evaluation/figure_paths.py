@@ -3,10 +3,10 @@
 A panel per method (and one for the minimum-time line) shows its timed laps coloured by
 speed, the start line, the driving direction and its off-track events (red crosses, counted
 in the panel's title). The grid has no empty cell: the cells after the methods' panels
-(``grid_shape``: at least one, two on a long track) zoom on the sharpest turns
-(``zoom_windows``) with every path overlaid in its method's colour and dash, so paths a
-few centimetres apart on a 400 m track can be told apart; the zoomed windows are framed
-and lettered in every method's panel.
+(``grid_shape``: at least one, two on a long track) zoom where the paths lie furthest
+apart, else on the sharpest turns (``zoom_windows``), with every path overlaid in its
+method's colour and dash, so paths a few centimetres apart on a 400 m track can be told
+apart; the zoomed windows are framed and lettered in every method's panel.
 """
 
 from __future__ import annotations
@@ -202,7 +202,7 @@ def draw_trajectories(
 ):
     """Paper Fig. 6: driven paths (timed laps) coloured by speed, one panel per method (and
     one for the minimum-time line), start line, driving direction and off-track events
-    marked; the remaining cells zoom on the sharpest turns with every path; the figure."""
+    marked; the remaining cells zoom where the paths part, with every path; the figure."""
     from matplotlib.collections import LineCollection
     from matplotlib.lines import Line2D
     from matplotlib.patches import Rectangle

@@ -11,7 +11,7 @@ file name and the caption (``CAPTIONS``, also written as ``captions.md``), not i
   methods that drive the same line.
 - ``fig6_trajectories`` (``figure_paths``): a panel per method (and the minimum-time line)
   coloured by speed, off-track events marked; the grid's remaining cells (at least one, two
-  on a long track) zoom on the sharpest turns with every path overlaid.
+  on a long track) zoom where the paths part most, every path overlaid.
 - ``fig7_laps`` (``figure_laps``): lap time of every lap per method (points, the mean, its
   gap to the limit), with the mean speed (centreline length / lap time) on the right-hand
   axis; beside it, with more than one lap, the laps in order.
@@ -92,7 +92,7 @@ CAPTIONS: dict[str, str] = {
     "fig5_speed_vs_s": "Fig. 5: speed along s of each method over the NSC, and each "
                        "method's speed minus the minimum-time line's.",
     "fig6_trajectories": "Fig. 6: driven paths coloured by speed, off-track events "
-                         "marked, and zooms on the sharpest turns with every path.",
+                         "marked, and zooms where the paths part, with every path.",
     "fig7_laps": "Fig. 7: lap time of every lap per method with the mean speed "
                  "(centreline length / lap time), and the laps in order.",
     "fig8_solve_time": "Fig. 8: planner compute time per planner cycle: histogram and "
