@@ -20,8 +20,10 @@ default ``$RACESTACK_CACHE`` or ``~/.cache/racestack``).
 
 Writes ``DIR/mintime.json`` (lap time, settings, solver figures), ``DIR/raceline.csv`` (the
 driven line in the F1TENTH raceline format, readable with
-``shared.track.load_f1tenth_raceline``), ``DIR/mintime_line.png`` (the line on the track
-coloured by speed) and ``DIR/mintime_speed.png`` (speed and acceleration over s).
+``shared.track.load_f1tenth_raceline``), ``DIR/mintime_line.{pdf,svg,png}`` (the line on
+the track coloured by speed) and ``DIR/mintime_speed.{pdf,svg,png}`` (speed and acceleration
+over s), each figure as vector PDF and SVG beside a 300 dpi PNG
+(``shared.evaluation.plotting.save_figure``, as the bench's figures).
 Bad input (unknown track, unwritable folder, bad numbers, no feasible lap) is one line on
 stderr and exit code 2.
 """
@@ -45,6 +47,7 @@ from services.planner import MinTimeLap, MinTimeSettings, make_min_time_lap, req
 from shared.config import ConfigError, load_config
 from shared.config.methods import RACELINE
 from shared.config.vehicle import DynamicVehicleParams
+from shared.evaluation.plotting import FORMATS, pyplot, save_figure
 from shared.outdir import writable_dir_problem
 from shared.track import (
     TRACK_SPEC_HELP,
@@ -101,19 +104,10 @@ def mintime_document(
     }
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def fig_line(lap: MinTimeLap, track: Track, path: Path) -> None:
-    """The optimal line on the track, coloured by speed."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(8, 7))
+    """The optimal line on the track, coloured by speed (``path``'s stem as PDF, SVG and
+    a 300 dpi PNG: ``save_figure``)."""
+    fig, ax = pyplot().subplots(figsize=(8, 7))
     for b in (track.left_boundary, track.right_boundary):
         loop = np.vstack([b, b[:1]])
         ax.plot(loop[:, 0], loop[:, 1], color="0.2", lw=1.0)
@@ -129,14 +123,12 @@ def fig_line(lap: MinTimeLap, track: Track, path: Path) -> None:
         f"(v_max {lap.v_max_mps:g} m/s, {lap.tyre_model})"
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def fig_speed(lap: MinTimeLap, path: Path) -> None:
-    """Speed and its rate over the driven line's arc length."""
-    plt = _plt()
-    fig, (a, b) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    """Speed and its rate over the driven line's arc length (PDF, SVG and PNG)."""
+    fig, (a, b) = pyplot().subplots(2, 1, figsize=(9, 5.5), sharex=True)
     a.plot(lap.s_m, lap.v_mps, color="C0", label="speed")
     a.axhline(lap.v_max_mps, color="0.5", ls=":", label=f"v_max {lap.v_max_mps:g} m/s")
     a.set_ylabel("speed [m/s]")
@@ -148,8 +140,7 @@ def fig_speed(lap: MinTimeLap, path: Path) -> None:
     b.legend(loc="lower right")
     fig.suptitle(f"minimum-time lap on {lap.track_name}: {lap.lap_time_s:.3f} s")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def write_outputs(
@@ -173,7 +164,8 @@ def write_outputs(
     if figures:
         fig_line(lap, track, out_dir / "mintime_line.png")
         fig_speed(lap, out_dir / "mintime_speed.png")
-        files += ["mintime_line.png", "mintime_speed.png"]
+        files += [f"{stem}.{fmt}" for stem in ("mintime_line", "mintime_speed")
+                  for fmt in FORMATS]
     doc["files"] = files
     tmp = out_dir / "mintime.json.tmp"
     tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")

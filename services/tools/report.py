@@ -39,6 +39,7 @@ from shared.evaluation import (
     write_figures,
     write_results,
 )
+from shared.evaluation.plotting import add_figure_formats_argument
 from shared.extras import MissingExtraError, require
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
 from shared.service_shell import OneLineArgumentParser, plain_help
@@ -272,6 +273,12 @@ def method_run(data: RecordingData, track: Track, profile: CurvatureProfile) -> 
         laps.append(LapRecord(lap_time_s=lap_time, mean_speed_mps=float(mean_speed),
                               off_track_events=int(ev.get("off_track_events") or 0),
                               max_abs_e_con_m=float(max_e)))
+    off_xy = []
+    for ev in events:  # where the car was when it left the track
+        if ev["kind"] == "off_track":
+            at = [_at(data, src[k], np.array([ev["t_s"]])) for k in (0, 1)]
+            if at[0] is not None and at[1] is not None:
+                off_xy.append((float(at[0][0]), float(at[1][0])))
     solve = data.series.get("solver/solve_time_ms", (None, np.zeros(0)))[1]
     status = data.series.get("solver/status_code", (None, np.zeros(0)))[1]
     infos = data.rows.get("plan/info", [])
@@ -284,6 +291,7 @@ def method_run(data: RecordingData, track: Track, profile: CurvatureProfile) -> 
         solver_failures=int(np.count_nonzero(status != 0)),
         requested_laps=len(laps),
         extra={"recording": str(data.path)},
+        off_track_xy=off_xy,
     )
 
 
@@ -298,7 +306,7 @@ def build_report(
     run = method_run(data, track, profile)
     reference, why_not = limit_reference(track, cfg)
     meta = {"recording": str(data.path), "complete": data.complete,
-            "timelines": sorted(data.timelines)}
+            "timelines": sorted(data.timelines), "planner_dt_s": cfg.planner.dt_s}
     if why_not:
         meta["no_reference"] = why_not
     doc = results_document(track.name, track.length_m, [run], meta=meta, reference=reference)
@@ -341,6 +349,7 @@ def build_parser() -> OneLineArgumentParser:
     ap.add_argument("--no-figures", action="store_true",
                     help="print the table and write results.json only (default: the figures "
                     "too)")
+    add_figure_formats_argument(ap)
     return ap
 
 
@@ -390,8 +399,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_results(out / "results.json", doc)
     if not args.no_figures:
-        paths = write_figures(out, track, profile, [run])
-        print(f"figures: {', '.join(str(p) for p in paths)}")
+        paths = write_figures(out, track, profile, [run], formats=args.figure_formats,
+                              planner_period_s=doc["meta"].get("planner_dt_s"))
+        stems = sorted({p.stem for p in paths})
+        print(f"figures in {out}: {', '.join(stems)} "
+              f"({'/'.join(args.figure_formats)}; captions.md)")
     print(f"results: {out / 'results.json'}")
     return 0
 

@@ -1,104 +1,110 @@
-"""The paper's figures from a bench run or a recording, as PNG files (matplotlib, no display).
+"""The paper's figures from a bench run or a recording, each as vector PDF and SVG beside a
+300 dpi PNG (``plotting.save_figure``; matplotlib, no display). The figure number is in the
+file name and the caption (``CAPTIONS``, also written as ``captions.md``), not in the title.
 
-- ``fig4_curvature.png``: raw curvature, smoothed curvature and NSC along s (paper Fig. 4).
-- ``fig5_speed_vs_s.png``: speed along s of each method over the NSC as background (Fig. 5a).
-- ``fig6_trajectories.png``: driven paths on the track coloured by speed, a panel per method
-  (Fig. 6), with the start line and the driving direction.
-- ``fig7_laps.png``: lap time and mean speed of every lap (Fig. 7).
-- ``fig8_solve_time.png``: compute time per tick: histogram, cumulative share, p95 (Fig. 8).
+- ``fig4_curvature``: raw and smoothed curvature, then the NSC and the weight beta along s
+  (paper Fig. 4). The raw curvature is a thin translucent line under the smoothed one, and
+  the axis is set by the smoothed curvature (the raw one's sawtooth is clipped, said so).
+- ``fig5_speed_vs_s``: speed along s of each method over the NSC as background (Fig. 5a),
+  each method with its own colour, dash and markers over the minimum-time line (a grey band
+  drawn first); below it, each method's speed minus the minimum-time line's, which parts
+  methods that drive the same line.
+- ``fig6_trajectories`` (``figure_paths``): a panel per method (and the minimum-time line)
+  coloured by speed, off-track events marked; the grid's remaining cells (at least one, two
+  on a long track) zoom where the paths part most, every path overlaid.
+- ``fig7_laps`` (``figure_laps``): lap time of every lap per method (points, the mean, its
+  gap to the limit), with the mean speed (centreline length / lap time) on the right-hand
+  axis; beside it, with more than one lap, the laps in order.
+- ``fig8_solve_time``: compute time per planner cycle (one cycle per planner period):
+  step histograms as the share of each method's cycles, and the cumulative share with p95.
 
-Every figure has a title. The minimum-time line (``ReferenceLine``, passed in as data: this
-package imports no service) is drawn beside the methods: its speed along s in Fig. 5, its
-own panel in Fig. 6 and its lap time in Fig. 7.
+Legends are rows above the axes, inside the figure (``plotting.legend_row``), or inside
+the axes; none widens a figure. The minimum-time line (``ReferenceLine``, passed in as data:
+this package imports no service) is drawn beside the methods in Figs. 5, 6 and 7.
 
 The data-level choices are plain functions, tested without pixels: ``break_gaps`` (a gap
 in s is a gap in the line, not a straight segment), ``compute_time_axis_ms`` (Fig. 8's axis
 is set by the p99 of the samples, not by one outlier), ``no_solver`` (the raceline's tracker
-has a compute time, not a solve time: it runs no optimiser per tick).
+has a compute time, not a solve time: it runs no optimiser per tick), ``grid_shape`` and
+``zoom_windows`` (Fig. 6).
 """
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from shared.config.methods import METHODS
 from shared.curvature import CurvatureProfile
+from shared.evaluation.figure_laps import draw_laps
+from shared.evaluation.figure_paths import draw_trajectories, grid_shape, zoom_windows
+from shared.evaluation.plotting import (
+    DPI,
+    FORMATS,
+    LIMIT_STYLE,
+    ReferenceLine,
+    break_gaps,
+    gap_for,
+    legend_row,
+    method_style,
+    new_figure,
+    parse_formats,
+    plural,
+    save_figure,
+)
 from shared.evaluation.results import MethodRun
 from shared.track import Track
 
-#: Resolution of the PNG files [dots per inch].
-DPI = 110
+__all__ = [
+    "CAPTIONS",
+    "DPI",
+    "FORMATS",
+    "ReferenceLine",
+    "break_gaps",
+    "compute_time_axis_ms",
+    "draw_curvature",
+    "draw_laps",
+    "draw_solve_time",
+    "draw_speed_vs_s",
+    "draw_trajectories",
+    "gap_for",
+    "grid_shape",
+    "no_solver",
+    "parse_formats",
+    "plural",
+    "save_figure",
+    "write_figures",
+    "zoom_windows",
+]
+
 #: Fig. 8's axis ends at this many times the largest per-method p99 [-].
 AXIS_P99_FACTOR = 1.25
-#: A jump in s larger than this share of the lap (or than ``GAP_MIN_M``) is a gap [-].
-GAP_SHARE = 0.02
-#: ... and never less than this [m].
-GAP_MIN_M = 0.5
 #: Methods that run no optimisation per tick (their "solve time" is a compute time).
 NO_SOLVER_PREFIXES = (*(n for n, s in METHODS.items() if s.kind != "mpc"), "rdm")
-
-
-@dataclass(frozen=True)
-class ReferenceLine:
-    """The minimum-time lap of the simulated car, as the figures need it.
-
-    Attributes:
-        lap_time_s: its lap time [s].
-        x_m, y_m: (N,) its path [m].
-        s_m: (N,) progress of each point along the track's centreline [m], in [0, L).
-        v_mps: (N,) its speed [m/s].
-        name: the legend label.
-    """
-
-    lap_time_s: float
-    x_m: np.ndarray
-    y_m: np.ndarray
-    s_m: np.ndarray
-    v_mps: np.ndarray
-    name: str = "minimum-time line"
-
-
-def plural(n: int, word: str) -> str:
-    """``"1 lap"``, ``"3 laps"``."""
-    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+#: Fig. 4's curvature axis ends at this many times the smoothed curvature's maximum [-].
+CURVATURE_AXIS_FACTOR = 1.35
+#: The figures' file stems and captions (the figure number lives here, not in the titles).
+CAPTIONS: dict[str, str] = {
+    "fig4_curvature": "Fig. 4: curvature of the centreline (raw and smoothed), and the "
+                      "normalised smoothed curvature (NSC) with the weight beta along s.",
+    "fig5_speed_vs_s": "Fig. 5: speed along s of each method over the NSC, and each "
+                       "method's speed minus the minimum-time line's.",
+    "fig6_trajectories": "Fig. 6: driven paths coloured by speed, off-track events "
+                         "marked, and zooms where the paths part, with every path.",
+    "fig7_laps": "Fig. 7: lap time of every lap per method with the mean speed "
+                 "(centreline length / lap time), and the laps in order.",
+    "fig8_solve_time": "Fig. 8: planner compute time per planner cycle: histogram and "
+                       "cumulative share with p95.",
+}
 
 
 def no_solver(name: str) -> bool:
     """True for a method without an optimiser (a tracker on a raceline): what Fig. 8
     shows for it is the wall time of its tick's computation, no solve."""
     return name.lower().startswith(NO_SOLVER_PREFIXES)
-
-
-def break_gaps(
-    s: np.ndarray, values: np.ndarray, gap_m: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Sort (s, values) by s and put a NaN between neighbours more than `gap_m` apart.
-
-    A line drawn through the result stops at a gap in the data (a lap recorded only in
-    part, a stretch where nothing was recorded) instead of joining its ends straight.
-
-    Args:
-        s: (N,) progress [m]; values: (N,) the plotted quantity.
-        gap_m: the largest step in s that is still drawn [m].
-
-    Returns:
-        (s', values'), each (N + gaps,), sorted by s, NaN at the gaps.
-    """
-    s = np.asarray(s, dtype=float)
-    v = np.asarray(values, dtype=float)
-    order = np.argsort(s, kind="stable")
-    s, v = s[order], v[order]
-    cut = np.flatnonzero(np.diff(s) > gap_m) + 1
-    return np.insert(s, cut, np.nan), np.insert(v, cut, np.nan)
-
-
-def gap_for(length_m: float) -> float:
-    """The gap threshold of `break_gaps` on a lap of `length_m` [m]."""
-    return max(GAP_MIN_M, GAP_SHARE * length_m)
 
 
 def compute_time_axis_ms(samples: Sequence[Sequence[float]]) -> float:
@@ -111,55 +117,56 @@ def compute_time_axis_ms(samples: Sequence[Sequence[float]]) -> float:
     return max(max(p99, default=0.0) * AXIS_P99_FACTOR, 1e-3)
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path: Path) -> None:
-    fig.savefig(path, dpi=DPI, bbox_inches="tight", pad_inches=0.08)
-    _plt().close(fig)
+def _nsc_background(ax, profile: CurvatureProfile) -> None:
+    """The NSC as a grey band behind a plot along s (darker = sharper turn)."""
+    ax.imshow(profile.nsc[None, :], aspect="auto", cmap="Greys", alpha=0.3,
+              extent=(0.0, profile.length_m, 0.0, 1.0), transform=ax.get_xaxis_transform(),
+              vmin=0, vmax=1, origin="lower", zorder=0)
 
 
 def draw_curvature(profile: CurvatureProfile, title: str = ""):
-    """Paper Fig. 4: curvature, its moving average, and the NSC along s; the figure."""
-    plt = _plt()
-    fig, (a, b) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
-    a.plot(profile.s_m, profile.kappa, lw=0.8, color="0.6", label="curvature $\\kappa$")
-    a.plot(
-        profile.s_m,
-        profile.smoothed,
-        lw=1.6,
-        color="C3",
-        label=f"smoothed $K$ (window {profile.window} points)",
-    )
+    """Paper Fig. 4: curvature and its moving average, then the NSC and beta along s; the
+    figure. The raw curvature is thin and translucent under the smoothed one, and the
+    axis ends at ``CURVATURE_AXIS_FACTOR`` x the smoothed maximum (raw peaks above it are
+    clipped, said in its legend entry)."""
+    fig, body = new_figure((9, 5.5))
+    a, b = body.subplots(2, 1, sharex=True)
+    k_max = float(np.max(profile.smoothed)) if profile.smoothed.size else 1.0
+    top = max(k_max * CURVATURE_AXIS_FACTOR, 1e-6)
+    clipped = bool(np.any(profile.kappa > top))
+    a.plot(profile.s_m, profile.kappa, lw=0.5, color="0.45", alpha=0.55, zorder=2,
+           label="raw curvature $\\kappa$" + (" (peaks clipped)" if clipped else ""))
+    a.plot(profile.s_m, profile.smoothed, lw=1.8, color="C3", zorder=3,
+           label=f"smoothed curvature $K$ (moving average, {profile.window} points)")
+    a.set_ylim(min(0.0, float(np.min(profile.smoothed))) - 0.03 * top, top)
     a.set_ylabel("curvature [1/m]")
-    a.legend(loc="upper right", fontsize=8)
-    b.plot(profile.s_m, profile.nsc, color="C0", label="NSC $K^n$")
-    b.plot(
-        profile.s_m,
-        profile.beta,
-        color="C2",
-        ls="--",
-        label=f"$\\beta = g(K^n)$, $\\alpha$ = {profile.alpha:g}",
-    )
-    b.set_ylabel("[-]")
-    b.set_xlabel("s [m]")
+    a.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=8,
+             frameon=False, borderaxespad=0.2)
+    b.plot(profile.s_m, profile.nsc, color="C0", lw=1.6,
+           label="NSC $K^n = (K - K_{min}) / (K_{max} - K_{min})$")
+    b.plot(profile.s_m, profile.beta, color="C2", lw=1.6, ls="--",
+           label=f"weight $\\beta = e^{{-\\alpha (K^n)^2}}$, $\\alpha$ = {profile.alpha:g}")
+    b.set_ylabel("NSC $K^n$, weight $\\beta$ [1]")
+    b.set_xlabel("s: distance along the centreline [m]")
     b.set_ylim(-0.05, 1.05)
     b.set_xlim(0, profile.length_m)
-    b.legend(loc="center right", fontsize=8, framealpha=0.9)  # beta ~1, NSC ~0: free there
-    fig.suptitle(title or "Fig. 4: curvature and normalised smoothed curvature (NSC) along s")
-    fig.tight_layout()
+    b.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=8,
+             frameon=False, borderaxespad=0.2)
+    fig.suptitle(title or "Curvature and normalised smoothed curvature (NSC) along s")
     return fig
 
 
-def fig_curvature(profile: CurvatureProfile, path: Path, title: str = "") -> None:
-    """Write Fig. 4 to `path`."""
-    _save(draw_curvature(profile, title), path)
+def _laps_of(run: MethodRun, gap_m: float):
+    """(s, v) of each timed lap of `run`, gaps open (``break_gaps``)."""
+    tr = run.trace.arrays()
+    if not len(tr["lap"]):
+        return
+    timed = tr["lap"] >= 1
+    s, v, lap = tr["s_m"][timed], tr["speed_mps"][timed], tr["lap"][timed]
+    for lap_no in np.unique(lap):
+        sel = (lap == lap_no) & np.isfinite(s) & np.isfinite(v)
+        if sel.any():
+            yield break_gaps(s[sel], v[sel], gap_m)
 
 
 def draw_speed_vs_s(
@@ -169,284 +176,151 @@ def draw_speed_vs_s(
     title: str = "",
 ):
     """Paper Fig. 5a: speed along s of each method (every timed lap, gaps left open) over
-    the NSC as background, with the minimum-time line's speed; the figure."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(10, 4.5))
+    the NSC as background, with the minimum-time line's speed; the figure.
+
+    The minimum-time line is a grey band drawn first; each method has its colour, dash and
+    markers (spaced along s, shifted per method), so lines on the same path stay apart.
+    With a reference, a second panel shows each method's speed minus the minimum-time
+    line's at the same s (0 = the limit)."""
     L = profile.length_m
-    ax.imshow(
-        profile.nsc[None, :],
-        aspect="auto",
-        cmap="Greys",
-        alpha=0.3,
-        extent=(0.0, L, 0.0, 1.0),
-        transform=ax.get_xaxis_transform(),
-        vmin=0,
-        vmax=1,
-        origin="lower",
-    )
+    fig, body = new_figure((10, 6.2 if reference is not None else 4.6))
+    if reference is not None:
+        ax, dax = body.subplots(2, 1, sharex=True, height_ratios=(2.2, 1.0))
+    else:
+        ax, dax = body.subplots(1, 1), None
+    for a in (ax, dax):
+        if a is not None:
+            _nsc_background(a, profile)
     gap = gap_for(L)
-    for i, run in enumerate(runs):
-        tr = run.trace.arrays()
-        timed = tr["lap"] >= 1
-        if not timed.any():
-            continue
-        s, v, lap = tr["s_m"][timed], tr["speed_mps"][timed], tr["lap"][timed]
-        laps = np.unique(lap)
-        for k, lap_no in enumerate(laps):
-            sel = (lap == lap_no) & np.isfinite(s) & np.isfinite(v)
-            if not sel.any():
-                continue
-            s_k, v_k = break_gaps(s[sel], v[sel], gap)
-            ax.plot(
-                s_k,
-                v_k,
-                color=f"C{i}",
-                lw=1.6,
-                alpha=max(0.5, 1.0 - 0.04 * len(laps)),
-                label=f"{run.name} ({plural(len(run.laps), 'lap')})" if k == 0 else None,
-            )
+    handles, labels = [], []
+    v_ref = None
     if reference is not None:
         s_r, v_r = break_gaps(np.mod(reference.s_m, L), reference.v_mps, gap)
-        ax.plot(s_r, v_r, color="k", lw=1.4, ls="--",
-                label=f"{reference.name} ({reference.lap_time_s:.2f} s)")
-    ax.set_xlim(0, L)
-    drawn = np.concatenate([np.asarray(ln.get_ydata(), float) for ln in ax.get_lines()]
-                           or [np.zeros(0)])
-    drawn = drawn[np.isfinite(drawn)]
-    if drawn.size:  # the speeds, not 0 (the NSC image would pull the axis down to 0)
-        lo, hi = float(drawn.min()), float(drawn.max())
-        pad = max(0.1, 0.08 * (hi - lo))
-        ax.set_ylim(max(0.0, lo - pad), hi + pad)
-    ax.set_xlabel("s [m] (background: NSC, darker = sharper turn)")
-    ax.set_ylabel("speed [m/s]")
-    if ax.get_legend_handles_labels()[0]:  # beside the plot: it covers no curve
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, borderaxespad=0.0)
-    ax.set_title(title or "Fig. 5: speed along the track")
-    fig.tight_layout()
-    return fig
+        (h,) = ax.plot(s_r, v_r, zorder=2, **LIMIT_STYLE)
+        handles.append(h)
+        labels.append(f"{reference.name} ({reference.lap_time_s:.2f} s)")
+        ok = np.isfinite(s_r) & np.isfinite(v_r)
+        s_c, v_c = s_r[ok], v_r[ok]
 
+        def v_ref(s: np.ndarray) -> np.ndarray:  # the limit's speed at s (periodic)
+            return np.interp(np.mod(s, L), s_c, v_c, period=L)
 
-def fig_speed_vs_s(
-    profile: CurvatureProfile,
-    runs: list[MethodRun],
-    path: Path,
-    reference: ReferenceLine | None = None,
-    title: str = "",
-) -> None:
-    """Write Fig. 5 to `path`."""
-    _save(draw_speed_vs_s(profile, runs, reference, title), path)
-
-
-def _path_segments(x: np.ndarray, y: np.ndarray, gap_m: float) -> np.ndarray:
-    """(M, 2, 2) segments between consecutive points, leaving out jumps over `gap_m` [m]."""
-    p = np.stack([x, y], axis=1)
-    seg = np.stack([p[:-1], p[1:]], axis=1)
-    ok = np.isfinite(seg).all(axis=(1, 2)) & (np.linalg.norm(p[1:] - p[:-1], axis=1) <= gap_m)
-    return seg[ok]
-
-
-def _draw_track(ax, track: Track) -> None:
-    """The track as a light band with thin edges, the start line and direction arrows."""
-    left = np.vstack([track.left_boundary, track.left_boundary[:1]])
-    right = np.vstack([track.right_boundary, track.right_boundary[:1]])
-    band = np.vstack([left, right[::-1]])
-    ax.fill(band[:, 0], band[:, 1], color="0.9", lw=0, zorder=0)
-    for b in (left, right):
-        ax.plot(b[:, 0], b[:, 1], color="0.6", lw=0.4, zorder=1)
-    xy = track.xy
-    L = track.length_m
-    span = float(np.ptp(xy, axis=0).max())
-    # start line across the track at s = 0, and a marker
-    ax.plot([track.left_boundary[0, 0], track.right_boundary[0, 0]],
-            [track.left_boundary[0, 1], track.right_boundary[0, 1]], color="k", lw=2.0,
-            zorder=4)
-    ax.plot(*xy[0], marker="o", ms=5, color="k", zorder=5)
-    ax.annotate("start", xy[0], xytext=(6, 6), textcoords="offset points", fontsize=8,
-                zorder=5)
-    # driving direction: arrows along the centreline at a few places
-    s = np.asarray(track.s_m, dtype=float)
-    for frac in (0.0, 0.25, 0.5, 0.75):
-        k = int(np.searchsorted(s, frac * L + 0.02 * L))
-        k = min(k, len(xy) - 2)
-        d = xy[k + 1] - xy[k]
-        d = d / max(float(np.linalg.norm(d)), 1e-9) * 0.07 * span
-        ax.annotate("", xy=xy[k] + d, xytext=xy[k], zorder=5,
-                    arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 1.4,
-                                "mutation_scale": 14})
-
-
-def draw_trajectories(
-    track: Track,
-    runs: list[MethodRun],
-    reference: ReferenceLine | None = None,
-    title: str = "",
-):
-    """Paper Fig. 6: driven paths (timed laps) coloured by speed, one panel per method (and
-    one for the minimum-time line), start line and driving direction marked; the figure."""
-    from matplotlib.collections import LineCollection
-
-    plt = _plt()
-    panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
-    for run in runs:
-        tr = run.trace.arrays()
-        timed = tr["lap"] >= 1
-        panels.append((f"{run.name}: {plural(run.completed_laps, 'lap')}",
-                       tr["x_m"][timed], tr["y_m"][timed], tr["speed_mps"][timed]))
-    if reference is not None:
-        panels.append((f"{reference.name}: {reference.lap_time_s:.2f} s",
-                       np.asarray(reference.x_m), np.asarray(reference.y_m),
-                       np.asarray(reference.v_mps)))
-    n = max(1, len(panels))
-    lo, hi = track.xy.min(axis=0), track.xy.max(axis=0)
-    w_max = float(max(np.max(track.w_left_m), np.max(track.w_right_m)))
-    lo, hi = lo - w_max - 0.2, hi + w_max + 0.2
-    aspect = float((hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-9))
-    panel_w = 4.8
-    cols = n if n <= 4 else 3  # one row up to four panels
-    panel_w = panel_w if cols <= 3 else 4.0
-    rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(panel_w * cols + 1.0,
-                                                  panel_w * aspect * rows + 0.8),
-                             squeeze=False, layout="constrained")
-    speeds = np.concatenate([v[np.isfinite(v)] for _, _, _, v in panels] or [np.ones(1)])
-    if not speeds.size:
-        speeds = np.ones(1)
-    vmax = float(speeds.max())
-    vmin = max(0.0, np.floor(2.0 * float(np.percentile(speeds, 1))) / 2.0)
-    vmin = min(vmin, max(vmax - 0.5, 0.0))  # a range of at least 0.5 m/s
-    span = float(np.ptp(track.xy, axis=0).max())
-    lw = float(np.clip(150.0 / max(span, 1.0), 1.6, 3.0))  # thinner on a long track
-    coloured = None
-    for ax, (label, x, y, v) in zip(axes.flat, panels, strict=False):
-        _draw_track(ax, track)
-        seg = _path_segments(np.asarray(x, float), np.asarray(y, float), gap_for(span))
-        if len(seg):
-            p = np.stack([x, y], axis=1)
-            ok = np.isfinite(p).all(axis=1)
-            vv = np.asarray(v, float)
-            mid = 0.5 * (vv[:-1] + vv[1:])
-            dist = np.linalg.norm(p[1:] - p[:-1], axis=1)
-            keep = ok[:-1] & ok[1:] & (dist <= gap_for(span))
-            coll = LineCollection(seg, cmap="turbo", linewidths=lw, zorder=3)
-            coll.set_array(mid[keep])
-            coll.set_clim(vmin, vmax)
-            ax.add_collection(coll)
-            coloured = coll
-        ax.set_title(label, fontsize=10)
-        ax.set_aspect("equal")
-        ax.set_xlim(lo[0], hi[0])
-        ax.set_ylim(lo[1], hi[1])
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-    for ax in list(axes.flat)[len(panels):]:
-        ax.set_visible(False)
-    if coloured is not None:
-        fig.colorbar(coloured, ax=axes.ravel().tolist(), label="speed [m/s]",
-                     shrink=0.8 if aspect * rows <= 1.2 else 0.55, pad=0.02)
-    fig.suptitle(title or f"Fig. 6: driven paths on {track.name}, coloured by speed")
-    return fig
-
-
-def fig_trajectories(
-    track: Track,
-    runs: list[MethodRun],
-    path: Path,
-    reference: ReferenceLine | None = None,
-    title: str = "",
-) -> None:
-    """Write Fig. 6 to `path`."""
-    _save(draw_trajectories(track, runs, reference, title), path)
-
-
-def draw_laps(runs: list[MethodRun], reference: ReferenceLine | None = None, title: str = ""):
-    """Paper Fig. 7: lap time and mean speed of each lap with each method's mean, the
-    minimum-time lap as a line; whole-number lap ticks, the legend beside the plots."""
-    plt = _plt()
-    fig, (a, b) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    n_max = 1
+        dax.axhline(0.0, zorder=2, **LIMIT_STYLE)
+    n = max(1, len(runs))
     for i, run in enumerate(runs):
-        if not run.laps:
-            continue
-        k = np.arange(1, len(run.laps) + 1)
-        n_max = max(n_max, len(run.laps))
-        t = np.array([lap.lap_time_s for lap in run.laps])
-        v = np.array([lap.mean_speed_mps for lap in run.laps])
-        off = np.array([lap.off_track_events > 0 for lap in run.laps])
-        a.plot(k, t, "o-", color=f"C{i}", label=f"{run.name} (mean {np.mean(t):.3f} s)")
-        a.axhline(np.mean(t), color=f"C{i}", ls=":", lw=1)
-        b.plot(k, v, "s-", color=f"C{i}", label=run.name)
-        if off.any():
-            a.scatter(k[off], t[off], marker="x", s=80, color="red", zorder=5,
-                      label=f"{run.name}: off track")
-    if reference is not None:
-        a.axhline(reference.lap_time_s, color="k", ls="--", lw=1.2,
-                  label=f"{reference.name} ({reference.lap_time_s:.3f} s)")
-    a.set_ylabel("lap time [s]")
-    b.set_ylabel("mean speed [m/s]")
-    b.set_xlabel("lap")
-    step = int(np.ceil(n_max / 15))  # whole laps only, at most ~15 ticks
-    b.set_xticks(np.arange(1, n_max + 1, step))
-    b.set_xlim(0.5, n_max + 0.5)
-    handles, labels = a.get_legend_handles_labels()
-    if handles:  # beside the plots: it covers no point
-        a.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8,
-                 borderaxespad=0.0)
-    a.set_title(title or "Fig. 7: lap time and mean speed of every lap")
-    fig.tight_layout()
+        st = method_style(i)
+        first = True
+        for s_k, v_k in _laps_of(run, gap):
+            kw = {"color": st["color"], "ls": st["ls"], "lw": 1.6, "zorder": 3 + i,
+                  "marker": st["marker"] if first else None, "ms": 4.5, "mfc": "white",
+                  "mew": 1.2, "markevery": _markevery(s_k, L, i, n) if first else None}
+            (h,) = ax.plot(s_k, v_k, **kw)
+            if v_ref is not None:
+                dax.plot(s_k, v_k - v_ref(s_k), **kw)
+            if first:
+                handles.append(h)
+                labels.append(f"{run.name} ({plural(len(run.laps), 'lap')})")
+                first = False
+    ax.set_xlim(0, L)
+    _fit_y(ax, floor_zero=True)
+    ax.set_ylabel("speed [m/s]")
+    last = dax if dax is not None else ax
+    last.set_xlabel("s: distance along the centreline [m] (background: NSC, darker = "
+                    "sharper turn)")
+    if dax is not None:
+        _fit_y(dax, floor_zero=False)
+        dax.set_ylabel("speed - min-time\nline's [m/s]")
+    legend_row(body, handles, labels, max_cols=5)
+    fig.suptitle(title or "Speed along the track")
     return fig
 
 
-def fig_laps(
-    runs: list[MethodRun], path: Path, reference: ReferenceLine | None = None, title: str = ""
-) -> None:
-    """Write Fig. 7 to `path`."""
-    _save(draw_laps(runs, reference, title), path)
+def _markevery(s: np.ndarray, L: float, i: int, n: int) -> list[int]:
+    """Indices of a line's markers: every 1/12 of the lap, method `i` of `n` shifted by
+    i/n of that step (markers of methods on the same line do not sit on each other)."""
+    step = L / 12.0
+    ok = np.isfinite(s)
+    if not ok.any():
+        return []
+    targets = np.arange(step * i / n, L, step)
+    idx = np.flatnonzero(ok)
+    k = np.searchsorted(s[idx], targets)
+    k = np.clip(k, 0, idx.size - 1)
+    near = np.abs(s[idx][k] - targets) <= step / 4
+    return sorted(set(idx[k[near]].tolist()))
 
 
-def draw_solve_time(runs: list[MethodRun], title: str = ""):
-    """Paper Fig. 8: histogram of each method's compute time per tick, its cumulative share
-    and p95 (in the legend); the axis ends at ``compute_time_axis_ms`` (slower ticks are
-    counted in the last bin and said on the figure). The MPC methods' time is the solver's
-    wall time; a method without a solver (``no_solver``) shows its tick's compute time."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 4.8))
-    ax2 = ax.twinx()
+def _fit_y(ax, floor_zero: bool) -> None:
+    """The y axis set by the drawn lines (not by the NSC image's 0..1); never below 0
+    with `floor_zero` (speeds)."""
+    drawn = [np.asarray(ln.get_ydata(), float) for ln in ax.get_lines()]
+    ys = np.concatenate(drawn) if drawn else np.zeros(0)
+    ys = ys[np.isfinite(ys)]
+    if not ys.size:
+        return
+    lo, hi = float(ys.min()), float(ys.max())
+    pad = max(0.1, 0.08 * (hi - lo))
+    ax.set_ylim(max(0.0, lo - pad) if floor_zero else lo - pad, hi + pad)
+
+
+def draw_solve_time(runs: list[MethodRun], title: str = "",
+                    planner_period_s: float | None = None):
+    """Paper Fig. 8: each method's compute time per planner cycle (one cycle = one planner
+    period, `planner_period_s`, said on the figure when given): step histograms of the
+    share of its cycles per bin (left) and the cumulative share with p95 (right, and in
+    the legend); the figure. The axis ends at ``compute_time_axis_ms`` (slower cycles are
+    counted in the last bin and said under the axis). The MPC methods' time is the
+    solver's wall time; a method without a solver (``no_solver``) shows its cycle's compute
+    time."""
+    fig, body = new_figure((10, 4.8))
+    ax, cax = body.subplots(1, 2, sharex=True)
     samples = [np.asarray(r.solve_times_ms, dtype=float) for r in runs]
     x_max = compute_time_axis_ms([t for t in samples if t.size])
     bins = np.linspace(0, x_max, 60)
     beyond = []
+    handles, labels = [], []
     for i, (run, t) in enumerate(zip(runs, samples, strict=True)):
         if t.size == 0:
             continue
+        st = method_style(i)
         p95 = float(np.percentile(t, 95))
         what = "compute time, no solver" if no_solver(run.name) else "solve time"
-        ax.hist(np.clip(t, 0, x_max), bins=bins, alpha=0.45, color=f"C{i}",
-                label=f"{run.name} ({what}), p95 {p95:.2f} ms")
+        weights = np.full(t.size, 100.0 / t.size)
+        ax.hist(np.clip(t, 0, x_max), bins=bins, weights=weights, histtype="step",
+                lw=1.6, color=st["color"], ls=st["ls"], zorder=3 + i)
         ts = np.sort(t)
-        ax2.plot(ts, np.arange(1, ts.size + 1) / ts.size, color=f"C{i}", lw=1.4)
-        ax.axvline(p95, color=f"C{i}", ls="--", lw=1)
+        (h,) = cax.plot(ts, 100.0 * np.arange(1, ts.size + 1) / ts.size, color=st["color"],
+                        ls=st["ls"], lw=1.6, zorder=3 + i)
+        cax.plot([p95], [95.0], marker=st["marker"], color=st["color"], ms=7, mfc="white",
+                 mew=1.5, zorder=10)
+        handles.append(h)
+        labels.append(f"{run.name} ({what}), p95 {p95:.2f} ms")
         over = int(np.count_nonzero(t > x_max))
         if over:
             beyond.append(f"{run.name} {over} (max {t.max():.1f} ms)")
     ax.set_xlim(0, x_max)
-    ax2.set_xlim(0, x_max)
-    label = "compute time per planner tick [ms] (dashed: p95)"
-    if beyond:  # said under the axis, over no bar
-        label += (f"\naxis ends at {AXIS_P99_FACTOR:g} x the largest p99; ticks beyond it "
-                  f"(counted in the last bin): {', '.join(beyond)}")
-    ax.set_xlabel(label)
-    ax.set_ylabel("ticks")
-    ax2.set_ylabel("share of ticks below")
-    ax2.set_ylim(0, 1.02)
-    ax.legend(loc="center right", fontsize=8, framealpha=0.9)
-    ax.set_title(title or "Fig. 8: planner compute time per tick")
-    fig.tight_layout()
+    cax.axhline(95.0, color="0.5", lw=0.8, ls=":", zorder=1)
+    cax.annotate("95 %", (0.01, 95.0), xycoords=("axes fraction", "data"),
+                 xytext=(0, 3), textcoords="offset points", fontsize=8, color="0.4")
+    for a in (ax, cax):
+        a.set_xlabel("compute time per planner cycle [ms]")
+    if beyond:  # said under the axes, over no bar
+        note = (f"axis ends at {AXIS_P99_FACTOR:g} x the largest p99; cycles beyond it "
+                f"(counted in the last bin): {', '.join(beyond)}")
+        body.supxlabel(textwrap.fill(note, 150), fontsize=8)
+    ax.set_ylabel("share of the method's cycles per bin [%]")
+    cax.set_ylabel("planner cycles at or below [%]")
+    cax.set_ylim(0, 102)
+    ax.set_ylim(bottom=0)
+    ax.set_title("histogram", fontsize=10)
+    cax.set_title("cumulative share (marker: p95)", fontsize=10)
+    legend_row(body, handles, labels, max_cols=2)
+    cycle = ""
+    if planner_period_s:
+        cycle = (f" (one cycle = one planner period, {1e3 * planner_period_s:g} ms, "
+                 f"{1.0 / planner_period_s:g} Hz)")
+    fig.suptitle((title or "Planner compute time per cycle") + cycle)
     return fig
-
-
-def fig_solve_time(runs: list[MethodRun], path: Path, title: str = "") -> None:
-    """Write Fig. 8 to `path`."""
-    _save(draw_solve_time(runs, title), path)
 
 
 def write_figures(
@@ -455,27 +329,36 @@ def write_figures(
     profile: CurvatureProfile,
     runs: list[MethodRun],
     reference: ReferenceLine | None = None,
+    formats: Sequence[str] = FORMATS,
+    planner_period_s: float | None = None,
 ) -> list[Path]:
-    """Write all five figures into `out_dir`; returns their paths.
+    """Write all five figures into `out_dir`, each in every one of `formats`, and their
+    captions (``captions.md``); returns the figures' paths (figure by figure, in the
+    order of `formats`).
 
     Args:
         reference: the minimum-time line to draw beside the methods (None: none).
+        formats: some of ``FORMATS`` (default all: pdf, svg, png).
+        planner_period_s: the planner's period [s] (Fig. 8 says what one cycle is).
     """
+    out_dir = Path(out_dir)
     name = track.name
-    paths = {
-        "fig4_curvature.png": lambda p: fig_curvature(
-            profile, p, f"Fig. 4: curvature and NSC along s on {name}"),
-        "fig5_speed_vs_s.png": lambda p: fig_speed_vs_s(
-            profile, runs, p, reference, f"Fig. 5: speed along s on {name}"),
-        "fig6_trajectories.png": lambda p: fig_trajectories(track, runs, p, reference),
-        "fig7_laps.png": lambda p: fig_laps(
-            runs, p, reference, f"Fig. 7: lap time and mean speed of every lap on {name}"),
-        "fig8_solve_time.png": lambda p: fig_solve_time(
-            runs, p, f"Fig. 8: planner compute time per tick on {name}"),
+    draws = {
+        "fig4_curvature": lambda: draw_curvature(
+            profile, f"Curvature and NSC along s on {name}"),
+        "fig5_speed_vs_s": lambda: draw_speed_vs_s(
+            profile, runs, reference, f"Speed along s on {name}"),
+        "fig6_trajectories": lambda: draw_trajectories(track, runs, reference),
+        "fig7_laps": lambda: draw_laps(
+            runs, reference, f"Lap times on {name}", length_m=track.length_m),
+        "fig8_solve_time": lambda: draw_solve_time(
+            runs, f"Planner compute time per cycle on {name}", planner_period_s),
     }
-    out = []
-    for fname, draw in paths.items():
-        path = out_dir / fname
-        draw(path)
-        out.append(path)
+    out: list[Path] = []
+    for stem, draw in draws.items():
+        out += save_figure(draw(), out_dir / stem, formats)
+    exts = ",".join(parse_formats(formats))
+    lines = [f"# Figures on {name}", ""]
+    lines += [f"- `{stem}.{{{exts}}}`: {CAPTIONS[stem]}" for stem in draws]
+    (out_dir / "captions.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
     return out

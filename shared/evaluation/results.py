@@ -115,6 +115,8 @@ class MethodRun:
     run_off_track_events: int = 0
     #: of those, before the first timed lap started
     out_lap_off_track_events: int = 0
+    #: where the car (its CoG) was at each off-track event of the run: (x [m], y [m])
+    off_track_xy: list[tuple[float, float]] = field(default_factory=list)
 
     @property
     def completed_laps(self) -> int:

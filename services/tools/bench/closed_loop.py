@@ -70,6 +70,7 @@ class SimulatorPlant:
             slip angle).
         laps: the timed laps.
         off_all, off_out: off-track events, all and in the out lap.
+        off_xy: where the car was at each off-track event [m].
     """
 
     def __init__(
@@ -90,6 +91,7 @@ class SimulatorPlant:
         self.trace = Trace()
         self.laps: list[LapRecord] = []
         self.off_all = self.off_out = 0
+        self.off_xy: list[tuple[float, float]] = []
         self.cmd = Command(0.0, 0.0)
         st = self.sim.state
         self.timer.update(self.sim.t_s, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
@@ -162,6 +164,7 @@ class SimulatorPlant:
             for ev in timer.update(out.t_s, s.x_m, s.y_m, s.yaw_rad, s.v_mps):
                 if ev.kind == "off_track":
                     self.off_all += 1
+                    self.off_xy.append((s.x_m, s.y_m))
                     self.off_out += not self.laps and not timer.timing
                 if ev.kind == "lap" and ev.lap_time_s is not None:
                     self.laps.append(
@@ -213,4 +216,5 @@ def run_method(
         extra,
         plant.off_all,
         plant.off_out,
+        plant.off_xy,
     )

@@ -67,6 +67,7 @@ from shared.evaluation import (
     write_figures,
     write_results,
 )
+from shared.evaluation.plotting import FORMATS, add_figure_formats_argument
 from shared.outdir import writable_dir_problem
 from shared.service_shell import OneLineArgumentParser, count_problem, positive_int
 from shared.track import TRACK_SPEC_HELP, Track, TrackError, load_track
@@ -344,8 +345,10 @@ def run_bench(
     figures: bool = True,
     reference: bool = True,
     tuned: TunedCimpcc | None = None,
+    figure_formats: tuple[str, ...] = FORMATS,
 ) -> dict:
-    """Run every method and write results.json and the figures; returns the document.
+    """Run every method and write results.json and the figures (each in every one of
+    `figure_formats`); returns the document.
 
     With `reference`, the minimum-time lap comes first (``min_time_reference``)."""
     track = load_track(track_spec)
@@ -429,7 +432,8 @@ def run_bench(
     write_results(out_dir / "results.json", doc)
     if figures:
         write_figures(out_dir, track, profile, runs,
-                      reference=ref_lines[0] if ref_lines else None)
+                      reference=ref_lines[0] if ref_lines else None,
+                      formats=figure_formats, planner_period_s=cfg.planner.dt_s)
     return doc
 
 
@@ -482,8 +486,10 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
                     "default: the configuration's own [planner.cimpcc]")
     ap.add_argument(
         "--no-figures", action="store_true",
-        help="write results.json only, no PNG figures (default: the paper's figures too)"
+        help="write results.json only, no figures (default: the paper's figures too, in "
+        "--figure-formats)"
     )
+    add_figure_formats_argument(ap)
     ap.add_argument(
         "--no-reference",
         action="store_true",
@@ -556,6 +562,7 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
             figures=not args.no_figures,
             reference=not args.no_reference,
             tuned=tuned,
+            figure_formats=getattr(args, "figure_formats", FORMATS),
         )
     except TrackError as exc:  # e.g. no raceline on this track (raised before any race)
         print(f"racestack bench: error: {exc}", file=sys.stderr)

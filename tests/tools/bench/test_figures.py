@@ -73,23 +73,25 @@ def test_fig5_one_lap_report_draws_no_diagonal_to_the_lap_end() -> None:
     assert min(ln.get_linewidth() for ln in fig.axes[0].get_lines()) >= 1.4  # thick lines
     ax = fig.axes[0]
     fig.canvas.draw()
-    assert ax.get_legend().get_window_extent().x0 >= ax.get_window_extent().x1 - 1  # beside
+    (legend,) = fig.subfigs[0].legends  # a row above the axes, over no curve
+    assert legend.get_window_extent().y0 >= ax.get_window_extent().y1 - 1
     assert ax.get_ylim()[0] > 1.0  # the speeds set the axis, not the NSC image's 0..1
 
 
-def test_fig7_whole_lap_ticks_legend_beside_and_min_time_line() -> None:
+def test_fig7_whole_lap_ticks_legend_above_and_min_time_line() -> None:
     track = _circle()
     run = _one_lap_run(track)
+    two = MethodRun("mpcc", [*run.laps, LapRecord(track.length_m / 2.1, 2.1, 0, 0.1)],
+                    run.trace, [1.0], 0, 2)
     ref = ReferenceLine(3.5, np.zeros(3), np.zeros(3), np.zeros(3), np.ones(3))
-    fig = draw_laps([run], ref)
-    a, b = fig.axes
+    fig = draw_laps([run, two], ref)
+    a, b = (ax for ax in fig.axes if ax.get_lines())
     fig.canvas.draw()
     ticks = [t for t in b.get_xticks() if b.get_xlim()[0] <= t <= b.get_xlim()[1]]
     assert ticks and all(float(t).is_integer() for t in ticks)
-    legend = a.get_legend()
-    assert legend is not None
+    (legend,) = fig.subfigs[0].legends
     box = legend.get_window_extent()
-    assert box.x0 >= a.get_window_extent().x1 - 1  # beside the plot: covers no point
+    assert box.y0 >= a.get_window_extent().y1 - 1  # a row above the plots: covers no point
     assert any(abs(ln.get_ydata()[0] - 3.5) < 1e-9 for ln in a.get_lines())  # min-time line
     assert a.get_title()
 
@@ -102,12 +104,12 @@ def test_fig8_axis_is_not_set_by_one_outlier() -> None:
     fig = draw_solve_time([run, MethodRun("raceline", [], Trace(), [0.7] * 100, 0, 0)])
     ax = fig.axes[0]
     assert ax.get_xlim()[1] < 5.0
-    texts = ax.get_xlabel()
+    texts = fig.subfigs[0]._supxlabel.get_text()
     assert "beyond" in texts and "60.0" in texts  # the outlier is said, not drawn
-    labels = [x.get_text() for x in ax.get_legend().get_texts()]
+    labels = [x.get_text() for x in fig.subfigs[0].legends[0].get_texts()]
     assert any("raceline" in lb and "no solver" in lb for lb in labels)
     assert any("p95" in lb for lb in labels)  # p95 in the legend, not over the curves
-    assert ax.get_title()
+    assert ax.get_title() and fig._suptitle.get_text()
 
 
 def test_fig_titles_plural_and_no_solver() -> None:
@@ -126,8 +128,11 @@ def test_fig_write_all_five_with_a_reference(tmp_path) -> None:
     s = np.linspace(0, track.length_m, 50, endpoint=False)
     xy = np.array([track.point_at(v) for v in s])
     ref = ReferenceLine(4.0, xy[:, 0], xy[:, 1], s, np.full(50, 3.0))
-    paths = write_figures(tmp_path, track, profile, [_one_lap_run(track)], reference=ref)
+    paths = write_figures(tmp_path, track, profile, [_one_lap_run(track)], reference=ref,
+                          formats=("png",))
     assert [p.name for p in paths] == [
         "fig4_curvature.png", "fig5_speed_vs_s.png", "fig6_trajectories.png",
         "fig7_laps.png", "fig8_solve_time.png"]
     assert all(p.stat().st_size > 1000 for p in paths)
+    captions = (tmp_path / "captions.md").read_text()
+    assert "Fig. 4:" in captions and "`fig8_solve_time.{png}`" in captions
