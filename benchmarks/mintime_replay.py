@@ -3,6 +3,8 @@
     .venv/bin/python -m benchmarks.mintime_replay                         # map416, 4.18 m/s
     .venv/bin/python -m benchmarks.mintime_replay --track paperlike
     .venv/bin/python -m benchmarks.mintime_replay --track paperlike --v-max 10
+    .venv/bin/python -m benchmarks.mintime_replay --preset real_car_identified --rate 20 \
+        --slip-fraction 0.8 --ellipse-fraction 0.95      # the identified car, its reserves
 
 Solves (or loads from the cache) the minimum-time lap, feeds its line and speeds forward
 into ``services.simulator.Simulator`` (default settings) with the small feedback of
@@ -21,6 +23,7 @@ from services.planner.mintime.ocp import MinTimeSettings
 from services.planner.mintime.store import make_min_time_lap
 from services.tools.bench.replay import ReplayOptions, replay_min_time
 from shared.config import load_config
+from shared.config.vehicle import VEHICLE_PRESETS, vehicle_preset
 from shared.track import load_track
 
 MAP416 = Path(__file__).resolve().parents[1].parent / "shared" / "tracks" / "map416"
@@ -32,11 +35,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--track", default=str(MAP416), help="track (default ../shared map416)")
     ap.add_argument("--v-max", type=float, default=4.18, help="top speed of the OCP [m/s]")
     ap.add_argument("--laps", type=int, default=3, help="flying laps to time")
+    ap.add_argument("--preset", default=None, choices=sorted(VEHICLE_PRESETS),
+                    help="the car (simulated and planned); default the configuration's")
+    ap.add_argument("--rate", type=float, default=200.0, help="tracker rate [Hz] (200)")
+    ap.add_argument("--slip-fraction", type=float, default=1.0,
+                    help="the lap's Pacejka slip reserve (MinTimeSettings; 1: none)")
+    ap.add_argument("--ellipse-fraction", type=float, default=1.0,
+                    help="the lap's Pacejka friction-ellipse reserve (1: none)")
     args = ap.parse_args(argv)
     cfg = load_config(None)
+    sim = cfg.simulator
+    if args.preset is not None:
+        sim = sim.model_copy(update={"vehicle": vehicle_preset(args.preset)})
     track = load_track(args.track)
-    lap = make_min_time_lap(track, cfg.simulator.vehicle, MinTimeSettings(v_max_mps=args.v_max))
-    res = replay_min_time(lap, track, cfg.simulator, ReplayOptions(laps=args.laps))
+    settings = MinTimeSettings(v_max_mps=args.v_max, slip_fraction=args.slip_fraction,
+                               ellipse_fraction=args.ellipse_fraction)
+    lap = make_min_time_lap(track, sim.vehicle, settings)
+    opts = ReplayOptions(laps=args.laps, control_dt_s=1.0 / args.rate)
+    res = replay_min_time(lap, track, sim, opts)
     print(f"{track.name} ({track.length_m:.2f} m), v_max {args.v_max:g} m/s: OCP lap "
           f"{lap.lap_time_s:.4f} s ({'cached' if lap.cache_hit else 'solved'})")
     for i, t in enumerate(res.lap_times_s, start=1):

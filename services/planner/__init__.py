@@ -27,7 +27,7 @@ from services.planner.interface import (
     PlannerLike,
     SolveResult,
 )
-from services.planner.mintime.model import DELTA
+from services.planner.mintime.model import DELTA, servo_reach
 from services.planner.mintime.ocp import CODE_VERSION as MIN_TIME_CODE_VERSION
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mintime.requests import LIMIT as MIN_TIME_LIMIT
@@ -91,5 +91,6 @@ __all__ = [
     "min_time_lap",
     "raceline_request",
     "request_for",
+    "servo_reach",
     "step_numpy",
 ]

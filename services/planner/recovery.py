@@ -40,7 +40,9 @@ import numpy as np
 
 from shared.angles import wrap_angle
 from shared.config.planner import RecoverySettings
+from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track
+from shared.vehicle import GRAVITY_MPS2, axle_peak_friction
 
 #: k_e [rad/m] of the guidance field: how steeply the wanted heading points at the line.
 GUIDANCE_GAIN_PER_M = 2.0
@@ -194,6 +196,29 @@ class StallWatch:
         elif counts:
             self.stalled_s += dt_s
         return self.stalled_s
+
+
+#: Tyres whose force falls past the peak (Pacejka): the hand-over's ramp leaves this share of
+#: the friction circle to the longitudinal force, the rest (0.71 of it) to steering.
+PEAKY_TYRES_ACCEL_SHARE = 0.7
+
+
+def handover_accel_mps2(vehicle: DynamicVehicleParams) -> float:
+    """The hand-over's ramp rate [m/s^2] for `vehicle`: its acceleration limit ``a_max``; with
+    tyres whose force falls past the peak (Pacejka: the identified car's rear spins when
+    a full-throttle start takes its whole friction ellipse, issue #21) at most
+    ``PEAKY_TYRES_ACCEL_SHARE`` of the friction circle ``min_i mu_i g``."""
+    if vehicle.tyre_model != "pacejka":
+        return vehicle.accel_max_mps2
+    circle = min(axle_peak_friction(vehicle, "front"), axle_peak_friction(vehicle, "rear"))
+    return min(vehicle.accel_max_mps2, PEAKY_TYRES_ACCEL_SHARE * circle * GRAVITY_MPS2)
+
+
+def ramps_from_rest(vehicle: DynamicVehicleParams) -> bool:
+    """Whether a near-limit planner starts with the hand-over's ramp from rest: for tyres
+    whose force falls past the peak (``handover_accel_mps2``); the gym car's start is as it
+    was."""
+    return vehicle.tyre_model == "pacejka"
 
 
 class HandOver:

@@ -153,6 +153,19 @@ class RacelineSettings(Section):
         0.02, ge=0.0, le=1.0,
         description="min_time: keep the car's footprint this far inside the boundaries [m]",
     )
+    min_time_slip_fraction: float = Field(
+        0.8, ge=0.1, le=1.0,
+        description="min_time, Pacejka tyres: each axle's slip angle stays within this share "
+        "of its peak slip (past the peak the force falls and the car spins; the identified "
+        "rear gives 99 % of its peak force at 0.8 of its peak slip; tuned on the generator's "
+        "TUNING_SEEDS); no effect on other tyres",
+    )
+    min_time_ellipse_fraction: float = Field(
+        0.95, ge=0.1, le=1.0,
+        description="min_time, Pacejka tyres: each axle's force stays within this share of "
+        "its friction ellipse (room for the speed loop's corrections); no effect on other "
+        "tyres",
+    )
     a_lat_mps2: float = Field(
         5.5, gt=0.0, le=50.0, description="min_curvature: lateral acceleration limit [m/s^2]"
     )
@@ -251,6 +264,18 @@ class CimpccLineSettings(Section):
         0.06, ge=0.0, le=1.0,
         description="the minimum-time lap keeps its footprint this far inside [m] (room for "
         "the tracking error)",
+    )
+    slip_fraction: float = Field(
+        0.8, ge=0.1, le=1.0,
+        description="Pacejka tyres: the minimum-time lap keeps each axle's slip angle within "
+        "this share of its peak slip (room for the tracking error before the tyre's force "
+        "falls); no effect on other tyres",
+    )
+    ellipse_fraction: float = Field(
+        0.95, ge=0.1, le=1.0,
+        description="Pacejka tyres: the minimum-time lap keeps each axle's force within this "
+        "share of its friction ellipse (room for the speed loop's corrections); no effect on "
+        "other tyres",
     )
     grip_fraction: float = Field(
         0.95, gt=0.1, le=1.0,

@@ -8,6 +8,7 @@ planners, the bench and the CLI solved before (the same cache keys, so caches st
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shlex
 import signal
@@ -316,7 +317,9 @@ def test_the_requests_are_the_laps_solved_before(name: str) -> None:
     ):
         got = request(cfg.planner, car)
         want = previous(cfg.planner, car)
-        assert got.settings == want[1], request.__name__
+        # the Pacejka reserves (issue #21) are new and act on no other tyres: the same lap
+        plain = dataclasses.replace(got.settings, slip_fraction=1.0, ellipse_fraction=1.0)
+        assert plain == want[1], request.__name__
         assert store.cache_key(track, *got) == store.cache_key(track, *want), request.__name__
     # the default car is the simulator's default (F1TENTH gym)
     assert line_request(cfg.planner) == line_request(cfg.planner, F1TENTH_GYM)

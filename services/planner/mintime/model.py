@@ -59,6 +59,11 @@ NU = len(INPUT_NAMES)
 #: Pacejka tyres: |a| stays this share below min_i mu_i g (the lateral limit's square root
 #: has an infinite slope there, which stalls IPOPT; 0.1 % of the acceleration is nothing).
 PACEJKA_ACCEL_BACKOFF = 1e-3
+#: The servo's reach (below) is modelled when the rate limit times its time constant exceeds
+#: this share of the steering range's half-width: the gym's 0.01 s servo (3.2 rad/s x 0.01 s
+#: = 0.032 rad of 0.42) meets its rate limit almost everywhere, the identified car's 0.158 s
+#: one (0.51 rad) never does.
+SERVO_REACH_MIN_SHARE = 0.25
 #: Index of each state element.
 N_, XI, V, BETA, R, DELTA = range(NX)
 
@@ -79,6 +84,9 @@ class SpatialModel:
         friction_limited: whether the tyres have a friction limit (not ``linear``).
         peak_slip_rad: (front, rear) |alpha| bounds (Pacejka peak), or None.
         accel_limit_mps2: ``min(a_max, min_i mu_i g)`` [m/s^2], the simulator's |a| cap.
+        servo_time_constant_s: ``tau`` of a servo whose reach bounds the steering rate, or
+            None (``servo_reach``).
+        ellipse_use_max: bound on the ``tyres`` use [-] (``ellipse_fraction ** 2``).
     """
 
     ode: ca.Function
@@ -87,6 +95,8 @@ class SpatialModel:
     friction_limited: bool
     peak_slip_rad: tuple[float, float] | None
     accel_limit_mps2: float
+    servo_time_constant_s: float | None = None
+    ellipse_use_max: float = 1.0
 
 
 def corner_offset(n: ca.SX, xi: ca.SX, kappa: ca.SX, cx: float, cy: float) -> ca.SX:
@@ -97,8 +107,12 @@ def corner_offset(n: ca.SX, xi: ca.SX, kappa: ca.SX, cx: float, cy: float) -> ca
     return y - kappa * d * d / (ca.sqrt(kappa * kappa * d * d + q * q) + q)
 
 
-def spatial_model(p: DynamicVehicleParams) -> SpatialModel:
-    """The functions of `p`'s car along a reference (module docstring)."""
+def spatial_model(
+    p: DynamicVehicleParams, slip_fraction: float = 1.0, ellipse_fraction: float = 1.0
+) -> SpatialModel:
+    """The functions of `p`'s car along a reference (module docstring); Pacejka tyres keep
+    their slip within `slip_fraction` of the peak slip and their force within
+    `ellipse_fraction` of the ellipse (``MinTimeSettings``)."""
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
     kappa = ca.SX.sym("kappa")
@@ -151,11 +165,31 @@ def spatial_model(p: DynamicVehicleParams) -> SpatialModel:
     )
     peak = None
     if p.tyre_model == "pacejka":
-        peak = (pacejka_peak_slip_rad(p, "front"), pacejka_peak_slip_rad(p, "rear"))
+        peak = (
+            slip_fraction * pacejka_peak_slip_rad(p, "front"),
+            slip_fraction * pacejka_peak_slip_rad(p, "rear"),
+        )
     a_lim = min(p.accel_max_mps2, min(mu_f, mu_r) * GRAVITY_MPS2)
     if p.tyre_model == "pacejka":  # its F_y,max = sqrt((mu F_z)^2 - F_x^2) is steep at 0
         a_lim = min(a_lim, (1.0 - PACEJKA_ACCEL_BACKOFF) * min(mu_f, mu_r) * GRAVITY_MPS2)
-    return SpatialModel(ode, tyres, footprint, limited, peak, a_lim)
+    use_max = ellipse_fraction**2 if p.tyre_model == "pacejka" else 1.0
+    return SpatialModel(ode, tyres, footprint, limited, peak, a_lim, servo_reach(p), use_max)
+
+
+def servo_reach(p: DynamicVehicleParams) -> float | None:
+    """The servo's time constant ``tau`` [s] when its reach bounds the steering rate, else None.
+
+    The simulator's servo is proportional, ``sv = (delta_target - delta) / tau``, and its
+    target lies within the steering limits, so whatever the command the rate stays within
+    ``(delta_min - delta) / tau <= sv <= (delta_max - delta) / tau`` besides the rate limits:
+    a slow servo cannot swing the wheels at its rate limit near an end stop. The optimiser
+    keeps ``delta + tau sv`` within the limits when that matters
+    (``SERVO_REACH_MIN_SHARE``).
+    """
+    tau = p.steering_time_constant_s
+    rate = max(p.steering_rate_max_radps, -p.steering_rate_min_radps)
+    half = 0.5 * (p.steering_max_rad - p.steering_min_rad)
+    return tau if tau * rate > SERVO_REACH_MIN_SHARE * half else None
 
 
 def friction_circle_mps2(p: DynamicVehicleParams) -> float:

@@ -224,12 +224,16 @@ def transcribe(
     if m.friction_limited:
         g_parts.append(ca.vec(tyres[0:2, :]))
         lbg.append(np.full(2 * n_path, -np.inf))
-        ubg.append(np.ones(2 * n_path))
+        ubg.append(np.full(2 * n_path, m.ellipse_use_max))
     if m.peak_slip_rad is not None:
         g_parts.append(ca.vec(tyres[2:4, :]))
         peak = np.tile(np.asarray(m.peak_slip_rad), n_path)
         lbg.append(-peak)
         ubg.append(peak)
+    if m.servo_time_constant_s is not None:  # the servo's target within the steering limits
+        g_parts.append(ca.vec(path_x[DELTA, :] + m.servo_time_constant_s * path_u[0, :]))
+        lbg.append(np.full(n_path, p.steering_min_rad))
+        ubg.append(np.full(n_path, p.steering_max_rad))
     if v_max > p.v_switch_mps:
         g_parts.append(ca.vec(path_x[V, :] * path_u[1, :]))
         lbg.append(np.full(n_path, -np.inf))

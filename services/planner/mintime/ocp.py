@@ -8,14 +8,17 @@ state ``x = [n, xi, v, beta, r, delta]``, input ``u = [sv, a]``)::
 
     minimise   T = integral_0^L (1 - n kappa) / (v cos(xi + beta)) ds
     subject to dx/ds = f(x, u, kappa(s)),   x(L) = x(0)                       (periodic)
-               F_xi^2 + F_yi^2 <= (mu_i F_zi)^2 per axle                       (friction)
-               |alpha_i| <= alpha_peak,i                          (pacejka tyres only)
+               F_xi^2 + F_yi^2 <= (f_e mu_i F_zi)^2 per axle                   (friction)
+               |alpha_i| <= f_s alpha_peak,i                      (pacejka tyres only)
                steering_min <= delta <= steering_max,  sv_min <= sv <= sv_max
                |a| <= min(a_max, min_i mu_i g),  a v <= a_max v_switch   (the simulator's)
                v_min <= v <= v_max                                 (v_max: the top speed)
                -(w_right - m) <= corner offsets <= w_left - m      (footprint, margin m)
                1 - n kappa >= NORMAL_SINGULARITY_MARGIN
 
+``f_e`` (``ellipse_fraction``) and ``f_s`` (``slip_fraction``) are reserves for tyres whose
+force falls past the peak (Pacejka; 1 for the others): the identified car's rear does, and
+a lap on its peak spins at the first tracking error (issue #21).
 ``mu_i`` from ``shared.vehicle.axle_peak_friction``; the gym's ``linear`` tyres have no
 friction limit (only steering, acceleration and speed bound the car). With Pacejka tyres
 ``|a|`` stays 0.1 % below ``min_i mu_i g`` (``mintime.model.PACEJKA_ACCEL_BACKOFF``). The
@@ -100,6 +103,14 @@ class MinTimeSettings:
         v_min_mps: lowest speed allowed [m/s] (keeps the simulator's dynamic regime).
         max_iter: IPOPT iteration limit.
         tol: IPOPT tolerance.
+        slip_fraction: Pacejka tyres: each axle's |slip angle| stays within this share of
+            its peak slip (1: up to the peak). Past the peak the force falls, so a lap at the
+            peak leaves no room for a tracking error; the identified car's rear at 0.7 of
+            its peak slip still gives 97 % of its peak force. No effect on other tyres.
+        ellipse_fraction: Pacejka tyres: each axle's force stays within this share of its
+            friction ellipse's radius, ``F_x^2 + F_y^2 <= (f mu_i F_z)^2`` (1: the whole
+            ellipse): room for the speed loop's corrections, whose longitudinal force
+            would otherwise push the lateral one past the peak. No effect on other tyres.
     """
 
     v_max_mps: float = 4.18
@@ -108,6 +119,8 @@ class MinTimeSettings:
     v_min_mps: float = 1.0
     max_iter: int = 3000
     tol: float = 1e-8
+    slip_fraction: float = 1.0
+    ellipse_fraction: float = 1.0
 
     def __post_init__(self) -> None:
         checks = (
@@ -117,6 +130,8 @@ class MinTimeSettings:
             ("v_min_mps", lambda v: 0.7 <= v < self.v_max_mps, "in [0.7, v_max) m/s"),
             ("max_iter", lambda v: 1 <= v <= 100000, "in [1, 100000]"),
             ("tol", lambda v: 0.0 < v < 1.0, "in (0, 1)"),
+            ("slip_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),
+            ("ellipse_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),
         )
         for name, ok, what in checks:
             value = getattr(self, name)
@@ -238,7 +253,7 @@ def solve_min_time(
             f"s = {grid.s_nodes[k]:.1f} m; the car needs {vehicle.width_m:.3f} m + 2 x "
             f"{cfg.margin_m:.3f} m margin",
         )
-    model = spatial_model(vehicle)
+    model = spatial_model(vehicle, cfg.slip_fraction, cfg.ellipse_fraction)
     tr = transcribe(model, vehicle, grid, cfg.v_max_mps, cfg.v_min_mps, cfg.margin_m)
     x0 = tr.pack(*initial_guess(grid, vehicle, model, cfg.v_max_mps, cfg.v_min_mps))
     solver = ca.nlpsol("mintime", "ipopt", tr.nlp, ipopt_options(cfg))

@@ -10,10 +10,12 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
 - ``cimpcc-line``: the line CiMPCC contours (``line_request``): the car's friction ``mu``
   times ``[planner.cimpcc_line] grip_fraction``, its steering within the planner's
   ``[planner.bounds] delta_rad`` (a line the planner cannot steer is no reference), top
-  speed ``v_max_mps`` and margin ``line_margin_m``;
+  speed ``v_max_mps``, margin ``line_margin_m`` and, with Pacejka tyres, the reserves
+  ``slip_fraction`` and ``ellipse_fraction``;
 - ``raceline``: the raceline baseline's line with ``[planner.raceline] line = "min_time"``
   (``raceline_request``): the car's steering within the planner's bounds, top speed
-  ``v_max_mps``, grid ``ds_m`` and margin ``min_time_margin_m`` of ``[planner.raceline]``.
+  ``v_max_mps``, grid ``ds_m``, margin ``min_time_margin_m`` and the Pacejka reserves
+  ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``.
 
 ``laps_of(method, settings)`` says which of them a planner method needs. Pure functions:
 no I/O, no solve.
@@ -73,7 +75,11 @@ def min_time_settings(settings: RacelineSettings) -> MinTimeSettings:
     """The raceline's minimum-time problem: top speed [m/s], grid [m], footprint margin [m]
     of `settings` (``[planner.raceline]``)."""
     return MinTimeSettings(
-        v_max_mps=settings.v_max_mps, ds_m=settings.ds_m, margin_m=settings.min_time_margin_m
+        v_max_mps=settings.v_max_mps,
+        ds_m=settings.ds_m,
+        margin_m=settings.min_time_margin_m,
+        slip_fraction=settings.min_time_slip_fraction,
+        ellipse_fraction=settings.min_time_ellipse_fraction,
     )
 
 
@@ -88,7 +94,13 @@ def line_request(
     if line.grip_fraction != 1.0:
         planned = planned.model_copy(update={"mu": planned.mu * line.grip_fraction})
     return LapRequest(
-        planned, MinTimeSettings(v_max_mps=line.v_max_mps, margin_m=line.line_margin_m)
+        planned,
+        MinTimeSettings(
+            v_max_mps=line.v_max_mps,
+            margin_m=line.line_margin_m,
+            slip_fraction=line.slip_fraction,
+            ellipse_fraction=line.ellipse_fraction,
+        ),
     )
 
 

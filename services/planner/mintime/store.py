@@ -37,6 +37,7 @@ import casadi as ca
 import numpy as np
 
 from services.planner.cache import default_cache_dir
+from services.planner.mintime.model import servo_reach
 from services.planner.mintime.ocp import (
     CODE_VERSION,
     MinTimeError,
@@ -56,6 +57,9 @@ log = logging.getLogger(__name__)
 CACHE_SUBDIR = "mintime"
 #: Stands for the configuration file in a command line when it is not known.
 CONFIG_PLACEHOLDER = "[--config FILE]"
+#: Settings added after laps were cached: at these values they stay out of the key, so the
+#: laps stored before them keep their keys (the same problem, the same lap).
+KEY_FREE_DEFAULTS: dict[str, object] = {"slip_fraction": 1.0, "ellipse_fraction": 1.0}
 
 
 def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings) -> str:
@@ -64,7 +68,15 @@ def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSett
     for arr in (track.xy, track.w_right_m, track.w_left_m):
         h.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
     h.update(vehicle.model_dump_json().encode())
-    h.update(json.dumps(dataclasses.asdict(settings), sort_keys=True).encode())
+    fields = dataclasses.asdict(settings)
+    if vehicle.tyre_model != "pacejka":  # the reserves act on Pacejka tyres only
+        fields.update({n: KEY_FREE_DEFAULTS[n] for n in ("slip_fraction", "ellipse_fraction")})
+    for name, default in KEY_FREE_DEFAULTS.items():  # laps solved before these existed
+        if fields.get(name) == default:
+            del fields[name]
+    h.update(json.dumps(fields, sort_keys=True).encode())
+    if servo_reach(vehicle) is not None:  # laps of a slow servo solved with its reach
+        h.update(b"|servo-reach")
     h.update(f"{CODE_VERSION}|casadi-{ca.__version__}".encode())
     return h.hexdigest()[:32]
 

@@ -51,6 +51,7 @@ import numpy as np
 
 from shared.config.vehicle import DynamicVehicleParams
 from shared.vehicle.steady_state import steady_state_steering
+from shared.vehicle.tyres import pacejka_slip_for_share
 
 #: Standard gravity [m/s^2].
 GRAVITY_MPS2 = 9.81
@@ -132,8 +133,10 @@ class SlipModel:
             rear = vehicle.mu * vehicle.cornering_stiffness_rear_per_rad
         g = GRAVITY_MPS2
         base = cls(vehicle.wheelbase_m, (1.0 / front - 1.0 / rear) / g, 1.0 / (g * rear))
-        if not near_limit or vehicle.tyre_model == "pacejka":
+        if not near_limit:
             return base
+        if vehicle.tyre_model == "pacejka":
+            return cls._pacejka_near_limit(vehicle, base)
         v = np.repeat(NEAR_LIMIT_SPEEDS_MPS, NEAR_LIMIT_SAMPLES)
         a_y = np.tile(
             np.linspace(0.5, NEAR_LIMIT_GRIP * vehicle.mu * g, NEAR_LIMIT_SAMPLES),
@@ -143,6 +146,28 @@ class SlipModel:
         delta, beta, _ = steady_state_steering(kappa, v, np.zeros_like(v), vehicle)
         k_us = (np.tan(delta) / kappa - vehicle.wheelbase_m) / v**2
         c = (np.arctan(vehicle.lr_m * kappa) - beta) / a_y
+        x = a_y**2
+        k_2 = float(x @ (k_us - base.understeer_s2pm) / (x @ x))
+        c_2 = float(x @ (c - base.rear_slip_s2pm) / (x @ x))
+        return cls(base.wheelbase_m, base.understeer_s2pm, base.rear_slip_s2pm, k_2, c_2)
+
+    @classmethod
+    def _pacejka_near_limit(cls, vehicle: DynamicVehicleParams, base: SlipModel) -> SlipModel:
+        """``K_2`` and ``c_2`` of Pacejka tyres: the least-squares fit of ``K_us + K_2 a_y^2``
+        and ``c_r + c_2 a_y^2`` to the magic formula's steady state (each axle's slip the
+        inverse of the curve at its share ``a_y / (mu_i g)`` of the peak; load transfer and
+        drag left out, the identified car's CoG is 14 mm high) at ``a_y`` up to
+        ``NEAR_LIMIT_GRIP`` of ``min_i mu_i g``. The identified car's understeer gradient
+        grows by about 20 % towards its limit (the small-angle slope alone keeps it at
+        0.0096 s^2/m)."""
+        g = GRAVITY_MPS2
+        mu_f = vehicle.mu * vehicle.pacejka_front[2]
+        mu_r = vehicle.mu * vehicle.pacejka_rear[2]
+        a_y = np.linspace(0.5, NEAR_LIMIT_GRIP * min(mu_f, mu_r) * g, NEAR_LIMIT_SAMPLES)
+        alpha_f = pacejka_slip_for_share(vehicle, "front", a_y / (mu_f * g))
+        alpha_r = pacejka_slip_for_share(vehicle, "rear", a_y / (mu_r * g))
+        k_us = (alpha_f - alpha_r) / a_y  # steering beyond the kinematic, per a_y
+        c = alpha_r / a_y
         x = a_y**2
         k_2 = float(x @ (k_us - base.understeer_s2pm) / (x @ x))
         c_2 = float(x @ (c - base.rear_slip_s2pm) / (x @ x))

@@ -42,6 +42,7 @@ from services.planner.interface import (
     DriveCommand,
     SolveResult,
 )
+from services.planner.mintime.model import servo_reach
 from services.planner.mintime.requests import line_request
 from services.planner.mintime.store import load_min_time_lap
 from services.planner.mpc.model import NU, NX, S, SlipModel, SpeedLoop, U, discretise
@@ -53,6 +54,8 @@ from services.planner.recovery import (
     Recovery,
     RecoveryCommand,
     StallWatch,
+    handover_accel_mps2,
+    ramps_from_rest,
 )
 from services.planner.reference import ReferencePath, centreline_path, min_time_path
 from shared.angles import wrap_angle
@@ -256,7 +259,13 @@ class Planner:
             track, settings.recovery, settings.wheelbase_m, min(-b.delta_rad[0], b.delta_rad[1])
         )
         self._stall = StallWatch()
-        self._handover = HandOver(car.accel_max_mps2)
+        line = setup.spec.reference == "min_time_line"
+        #: the near-limit method's start: ramped from rest for peaky tyres (recovery.py)
+        self._ramp_start = line and ramps_from_rest(car)
+        self._handover = HandOver(handover_accel_mps2(car) if line else car.accel_max_mps2)
+        #: a slow servo's time constant [s] whose lag the command inverts (None: no lead;
+        #: only on the minimum-time line, the paper's methods stay as they are)
+        self._servo_tau = servo_reach(car) if line else None
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -270,6 +279,8 @@ class Planner:
         self._prepared: _Prepared | None = None
         self._stall.reset()
         self._handover.active = False
+        if self._ramp_start:
+            self._handover.start(0.0)
         self._drove = False  #: the last tick's command was the method's own (solved)
         self._pose_prev: tuple[float, float, float] | None = None
         self._v_est = 0.0  #: the car's estimated speed at the last pose [m/s] (speed model)
@@ -399,7 +410,7 @@ class Planner:
         self._u_applied = u0
         speed, limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
         self._drove = True
-        command = DriveCommand(speed, float(u0[U.DELTA]))
+        command = DriveCommand(speed, self._servo_lead(u0, w))
         if on_command is not None:
             on_command(command)
         xs, us = pr.unpack(w)
@@ -420,6 +431,21 @@ class Planner:
         )
 
     # ------------------------------------------------------------------ helpers
+    def _servo_lead(self, u0: np.ndarray, w: np.ndarray) -> float:
+        """The steering command [rad]: the plan's first steering, led by a slow servo's lag.
+
+        The simulator's servo follows its target with ``d(delta)/dt = (target - delta) /
+        tau``; the model steers at once. With ``tau`` (``servo_reach``) the target is
+        ``delta_0 + tau (delta_1 - delta_0) / dt`` (the plan's first two stages), within the
+        steering bounds, so that the wheels move as planned instead of ``tau`` late.
+        """
+        delta0 = float(u0[U.DELTA])
+        if self._servo_tau is None or self.problem.horizon < 2:
+            return delta0
+        delta1 = float(w[self.problem.input_index(1)][U.DELTA])
+        lead = delta0 + self._servo_tau * (delta1 - delta0) / self.settings.dt_s
+        return float(np.clip(lead, self._u_lo[U.DELTA], self._u_hi[U.DELTA]))
+
     def _relocate(self) -> None:
         """The car was moved (``TELEPORT_JUMP_M``): forget where it was and what it did (the
         next solve starts cold from a search of the whole track, the recovery rule lets go),

@@ -50,11 +50,19 @@ import casadi as ca
 import numpy as np
 
 from services.planner.interface import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
+from services.planner.mintime.model import servo_reach
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mintime.requests import min_time_settings, planning_vehicle
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
-from services.planner.recovery import TELEPORT_JUMP_M, HandOver, Recovery, StallWatch
+from services.planner.recovery import (
+    TELEPORT_JUMP_M,
+    HandOver,
+    Recovery,
+    StallWatch,
+    handover_accel_mps2,
+    ramps_from_rest,
+)
 from shared.config.methods import RACELINE
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
@@ -76,6 +84,17 @@ class RacelineError(TrackError):
     in every shell, like any other unusable track)."""
 
 
+#: What ``[planner.raceline] steering_delay_s`` holds besides the pure delays [s]: the gym
+#: servo's 10 ms and the 18 ms allowance for the 20 Hz rate, tuned on the gym car; with a
+#: slow servo its lag is inverted instead, from the pure delays (compute 2 + actuation 10
+#: + steering 20 ms).
+SERVO_ALLOWANCE_S = 0.028
+#: Tyres whose force falls past the peak (``recovery.ramps_from_rest``): the car joins the
+#: line (the start, after a recovery) at most this fast [m/s] until it is this close to it
+#: [m], then the hand-over ramps it up: joining at racing speed from 0.4 m off the line
+#: spins the identified car.
+JOIN_SPEED_MPS = 2.0
+JOIN_TOLERANCE_M = 0.05
 #: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
 MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
 
@@ -333,10 +352,22 @@ def build_raceline(
     return build_min_time_raceline(track, settings, vehicle, steering_limits_rad, loader)
 
 
-def planner_timing(settings: PlannerSettings) -> TrackerTiming:
-    """The tracker's timing in the planner: one planner period, the configured delays."""
+def planner_timing(
+    settings: PlannerSettings, vehicle: DynamicVehicleParams | None = None
+) -> TrackerTiming:
+    """The tracker's timing in the planner: one planner period, the configured delays.
+
+    A car with a slow servo (``services.planner.mintime.model.servo_reach``: the identified
+    car's 0.158 s) has its lag inverted instead of counted as a delay: the window then
+    starts ``SERVO_ALLOWANCE_S`` earlier, after the pure delays, and the tracker leads the
+    planned steering by the servo's time constant (``TrackerTiming``).
+    """
     o = settings.raceline
-    return TrackerTiming(settings.dt_s, o.speed_delay_s, o.steering_delay_s)
+    tau = servo_reach(vehicle or F1TENTH_GYM)
+    if tau is None:
+        return TrackerTiming(settings.dt_s, o.speed_delay_s, o.steering_delay_s)
+    pure = max(o.steering_delay_s - SERVO_ALLOWANCE_S, 0.0)
+    return TrackerTiming(settings.dt_s, o.speed_delay_s, pure, servo_time_constant_s=tau)
 
 
 def tracker_gains(settings: RacelineSettings) -> TrackerGains:
@@ -381,7 +412,7 @@ class RacelinePlanner:
         )
         self.tracker = Tracker.for_vehicle(
             self.raceline.reference,
-            planner_timing(settings),
+            planner_timing(settings, self.vehicle),
             tracker_gains(self.options),
             self.vehicle,
         )
@@ -392,7 +423,7 @@ class RacelinePlanner:
             track, settings.recovery, settings.wheelbase_m, min(-b.delta_rad[0], b.delta_rad[1])
         )
         self._stall = StallWatch()
-        self._handover = HandOver(self.vehicle.accel_max_mps2)
+        self._handover = HandOver(handover_accel_mps2(self.vehicle))
         self.reset()
 
     @property
@@ -408,6 +439,8 @@ class RacelinePlanner:
         self.recovery.reset()
         self._stall.reset()
         self._handover.active = False
+        #: peaky tyres: join the line at JOIN_SPEED_MPS first, then ramp up (``step``)
+        self._joining = ramps_from_rest(self.vehicle)
         self._drove = False  #: the last tick's command was the tracker's
         self._speed_cmd = 0.0  #: the last speed command [m/s]
         self._last_xy: tuple[float, float] | None = None  #: the last pose's position [m]
@@ -470,9 +503,16 @@ class RacelinePlanner:
             )
         if was_recovering:  # hand back at the car's speed and ramp up
             self._handover.start(self._speed_cmd)
+            self._joining = ramps_from_rest(self.vehicle)
         tc = self.tracker.command(cx, cy, yaw_rad, hint)
         self._s_line = tc.s_m
         speed = min(max(tc.speed_mps, self._speed_lim[0]), self._speed_lim[1])
+        if self._joining:  # peaky tyres reach the line slowly, then ramp from there
+            if abs(tc.e_m) > JOIN_TOLERANCE_M:
+                speed = min(speed, JOIN_SPEED_MPS)
+            else:
+                self._joining = False
+                self._handover.start(self._speed_cmd)
         if self._handover.active:
             speed = self._handover.cap(speed, self.settings.dt_s)
         self._speed_cmd = speed

@@ -78,6 +78,8 @@ from shared.vehicle.steady_state import steady_state_steering
 KAPPA_OUTWARD_1PM = 0.1
 #: Spacing of the samples of a hold window [s].
 WINDOW_SAMPLE_S = 0.01
+#: Half-step [s] of the central difference of the planned steering's rate (servo lag).
+LAG_RATE_STEP_S = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -234,15 +236,21 @@ class TrackerTiming:
         period_s: control period: each command is held this long [s].
         speed_delay_s: pose -> speed loop (compute + actuation delay) [s].
         steering_delay_s: pose -> road wheels (compute + actuation + steering delay + the
-            servo's time constant) [s].
+            servo's time constant when ``servo_time_constant_s`` is 0) [s].
+        servo_time_constant_s: the servo's first-order lag ``tau`` [s] when it is inverted
+            (``Tracker``: the feed-forward becomes ``<delta_p + tau d(delta_p)/dt>_W_d``
+            with ``W_d`` after the pure delays only); 0: the lag is counted as a delay.
     """
 
     period_s: float
     speed_delay_s: float
     steering_delay_s: float
+    servo_time_constant_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if not self.period_s > 0.0 or min(self.speed_delay_s, self.steering_delay_s) < 0.0:
+        if not self.period_s > 0.0 or min(
+            self.speed_delay_s, self.steering_delay_s, self.servo_time_constant_s
+        ) < 0.0:
             raise ValueError("the period must be positive and the delays non-negative")
 
     def window(self, delay_s: float) -> np.ndarray:
@@ -328,6 +336,7 @@ class Tracker:
         self._w_speed = timing.window(timing.speed_delay_s)
         self._w_steer = timing.window(timing.steering_delay_s)
         self._s_hint: float | None = None
+        self._e_la_prev: float | None = None
 
     @classmethod
     def for_vehicle(
@@ -345,6 +354,7 @@ class Tracker:
     def reset(self, s_hint_m: float | None = None) -> None:
         """Forget where the car was (None: the next call searches the whole path)."""
         self._s_hint = s_hint_m
+        self._e_la_prev = None
 
     def project(self, x_m: float, y_m: float, s_hint_m: float | None = None) -> tuple[float, float]:
         """(s, e) [m] of the point on the planned path (e right +), near the hint if any."""
@@ -373,9 +383,19 @@ class Tracker:
         v_p = p.at("v", s)
         l_d = g.lookahead_m(v_p)
         e_la = e - l_d * math.sin(dpsi)
+        tau = self.timing.servo_time_constant_s
+        if tau > 0.0:  # a slow servo: feed back the error predicted its lag ahead
+            prev, self._e_la_prev = self._e_la_prev, e_la
+            if prev is not None:
+                e_la += tau * (e_la - prev) / self.timing.period_s
         t0 = p.at("t", s)
         s_steer = p.s_at_time(t0 + self._w_steer)
         steering = float(np.mean(p.at("delta", s_steer))) + g.k_lateral_radpm * e_la
+        if tau > 0.0:  # the servo's lag inverted: its target leads by tau times the rate
+            h = LAG_RATE_STEP_S
+            ahead = p.at("delta", p.s_at_time(t0 + self._w_steer + h))
+            behind = p.at("delta", p.s_at_time(t0 + self._w_steer - h))
+            steering += tau * float(np.mean(ahead - behind)) / (2.0 * h)
         s_speed = p.s_at_time(t0 + self._w_speed)
         outward = max(0.0, e * math.tanh(p.at("kappa", s) / KAPPA_OUTWARD_1PM))
         a_cmd = float(np.mean(p.accel_at(s_speed))) - g.k_outward_per_s2 * outward

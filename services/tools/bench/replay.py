@@ -31,6 +31,7 @@ from services.planner import (
     Tracker,
     TrackerGains,
     TrackerTiming,
+    servo_reach,
 )
 from services.simulator import Command, LapTimer, Simulator
 from shared.config.simulator import SimulatorSettings
@@ -82,12 +83,14 @@ def replay_timing(settings: SimulatorSettings, control_dt_s: float) -> TrackerTi
     """The tracker's timing in `settings`' simulator, driven every `control_dt_s` [s] on the
     true pose with no compute delay (module docstring)."""
     veh = settings.vehicle
+    pure = settings.actuation_delay_s + settings.steering_delay_s
+    tau = servo_reach(veh)
+    if tau is not None:  # a slow servo: its lag inverted (TrackerTiming)
+        return TrackerTiming(control_dt_s, settings.actuation_delay_s, pure, tau)
     return TrackerTiming(
         period_s=control_dt_s,
         speed_delay_s=settings.actuation_delay_s,
-        steering_delay_s=settings.actuation_delay_s
-        + settings.steering_delay_s
-        + veh.steering_time_constant_s,
+        steering_delay_s=pure + veh.steering_time_constant_s,
     )
 
 
