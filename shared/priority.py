@@ -1,0 +1,95 @@
+"""A process's own scheduling at start: nice, CPU affinity, real-time priority.
+
+``apply_priority(settings)`` (the common shell calls it after loading the configuration,
+before the bus and the workers start, so every thread inherits it) sets what
+``[processes.<name>]`` asks for and returns one warning line per thing it could not set
+(no right, no such CPU, not Linux), never raising: a process that may not raise its
+priority runs on at the one it has. ``SchedulingCalls`` holds the OS calls, so the rules are
+tested without changing the test process.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from shared.config.processes import ProcessPriority
+
+
+def _setpriority(nice: int) -> None:
+    os.setpriority(os.PRIO_PROCESS, 0, nice)
+
+
+def _getpriority() -> int:
+    return os.getpriority(os.PRIO_PROCESS, 0)
+
+
+def _available_cpus() -> set[int]:
+    return set(os.sched_getaffinity(0))
+
+
+def _setaffinity(cpus: set[int]) -> None:
+    os.sched_setaffinity(0, cpus)
+
+
+def _set_realtime(priority: int) -> None:
+    os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
+
+
+@dataclass(frozen=True)
+class SchedulingCalls:
+    """The OS calls ``apply_priority`` makes (Linux's, by default)."""
+
+    get_nice: Callable[[], int] = _getpriority
+    set_nice: Callable[[int], None] = _setpriority
+    available_cpus: Callable[[], set[int]] = _available_cpus
+    set_affinity: Callable[[set[int]], None] = _setaffinity
+    set_realtime: Callable[[int], None] = _set_realtime
+
+
+def apply_priority(
+    settings: ProcessPriority | None, calls: SchedulingCalls | None = None
+) -> list[str]:
+    """Set this process's niceness, CPUs and real-time priority from `settings` (None:
+    nothing); returns the warning lines of what could not be set (empty: all set)."""
+    if settings is None:
+        return []
+    os_calls = calls or SchedulingCalls()
+    warnings: list[str] = []
+    if settings.realtime_priority > 0:
+        try:
+            os_calls.set_realtime(settings.realtime_priority)
+        except (AttributeError, OSError) as exc:  # no right (EPERM), not Linux
+            warnings.append(
+                f"real-time priority {settings.realtime_priority} not permitted "
+                f"({_reason(exc)}): normal scheduling at nice {settings.nice}"
+            )
+    try:
+        if os_calls.get_nice() != settings.nice:
+            os_calls.set_nice(settings.nice)
+    except (AttributeError, OSError) as exc:
+        warnings.append(f"nice {settings.nice} not permitted ({_reason(exc)}): running at "
+                        "the niceness it was started with")
+    if settings.cpus:
+        try:
+            have = os_calls.available_cpus()
+            want = set(settings.cpus) & have
+            if want:
+                if want != have:
+                    os_calls.set_affinity(want)
+            else:
+                warnings.append(f"cpus {list(settings.cpus)}: none of them is available "
+                                f"({sorted(have)}): running on all")
+        except (AttributeError, OSError) as exc:
+            warnings.append(f"cpus {list(settings.cpus)} not set ({_reason(exc)}): running "
+                            "on all")
+    return warnings
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, PermissionError):
+        return "no permission: needs CAP_SYS_NICE or a raised ulimit -e / -r"
+    if isinstance(exc, AttributeError):
+        return "not supported on this system"
+    return str(exc) or type(exc).__name__
