@@ -184,6 +184,9 @@ class BridgeService(Service):
                                     yaw_rad=msg.yaw_rad)
             if self.lidar is not None:
                 self._place = msg
+            state = self._now_state(now) if self.on_pose_output else None
+        if state is not None:  # the car is there now: say so at once
+            self._put(state, fused=True)
         self.say(LogLevelName.INFO, f"teleport: state re-initialised at ({msg.x_m:.2f}, "
                  f"{msg.y_m:.2f}) m, {msg.yaw_rad:.2f} rad", limit="teleport")
 
@@ -213,6 +216,13 @@ class BridgeService(Service):
         Called holding the lock; the quality check is the fallback's (it says lines)."""
         if verdict not in FUSED:
             return None
+        return state_record(self.core.estimate(now), now)
+
+    def _now_state(self, now: float) -> State:
+        """The state at `now` after a teleport (holding the lock): the filter's, or with
+        ``filter = "passthrough"`` the announced pose's."""
+        if self.settings.filter == "passthrough" and self.newest_pose is not None:
+            return self.passthrough.on_pose(self.newest_pose, now)
         return state_record(self.core.estimate(now), now)
 
     def _put(self, state: State, fused: bool = False) -> None:

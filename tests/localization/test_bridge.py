@@ -113,6 +113,11 @@ def test_each_fused_pose_publishes_its_state_at_once_and_a_gated_one_does_not() 
     svc.on_pose(Pose(stamp_s=1000.045, x_m=40.0, y_m=2.0, yaw_rad=0.0))  # gated: no state
     svc.on_pose(Pose(stamp_s=900.0, x_m=1.0, y_m=2.0, yaw_rad=0.0))  # stale: no state
     assert len(bus.sent(bus.keys.state, State)) == 2
+    wall.t = 1000.06
+    svc.on_teleport(Teleport(stamp_s=1000.055, x_m=5.0, y_m=1.0, yaw_rad=0.5, speed_mps=0.0))
+    st = bus.sent(bus.keys.state, State)[-1]  # the teleport's state goes out at once
+    assert len(bus.sent(bus.keys.state, State)) == 3
+    assert (st.x_m, st.y_m, st.stamp_s) == (pytest.approx(5.0), pytest.approx(1.0), 1000.06)
 
 
 def test_the_fallback_state_goes_out_only_while_no_pose_is_fused() -> None:
