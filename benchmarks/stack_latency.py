@@ -22,7 +22,10 @@ Each run measures two phases with the same processes: ``quiet`` (nothing added),
 ``hog`` (a busy-loop subprocess pinned with ``os.sched_setaffinity`` to the last CPU,
 started before the phase and stopped by its PID after it). Targets (issue 25): delivered
 p99 <= solve p99 + 1 ms quiet, + 3 ms with the hog; the solve starts from the newest pose in
-at least 99 % of solves. The load average is printed before and after each phase.
+at least 99 % of solves. The load average is printed before and after each phase. This
+process plays the simulator (poses, odometry; and the hub, as ``racestack up``'s launcher
+does): it takes ``[processes.simulator]``'s scheduling, the services their own (e.g.
+``--config-extra`` with ``[processes.planner]\\nnice = -10``, where permitted).
 
     .venv/bin/python -m benchmarks.stack_latency --seconds 30 --runs 2
     .venv/bin/python -m benchmarks.stack_latency --seconds 30 --phases quiet
@@ -47,6 +50,7 @@ from shared.bus import Bus, TypedPublisher
 from shared.config import load_config
 from shared.messages import DriveCmd, Odom, Plan, Pose, State
 from shared.net import free_loopback_port
+from shared.priority import apply_priority
 from shared.track import Track, load_track
 
 SERVICES = ("localization_bridge", "planner")
@@ -216,6 +220,8 @@ def run(
     cfg_path.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_loopback_port()}"]\n{extra_config}')
     cfg = load_config(cfg_path)
     track = load_track(cfg.track.source)
+    for line in apply_priority(cfg.processes.simulator):  # this process plays the simulator
+        print(f"bench: [processes.simulator] {line}", file=sys.stderr)
     got = Collector()
     out: dict[str, dict] = {}
     with Bus(cfg.bus, "bench", listen_default=True, mode="router") as bus, \

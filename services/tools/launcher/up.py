@@ -270,7 +270,8 @@ def _connect_line(log_path: Path | None, timeout_s: float) -> str | None:
         if log_path.exists():
             for line in log_path.read_text(errors="replace").splitlines():
                 if "rerun --connect" in line:
-                    return "watch live with: rerun --connect " + line.split(
+                    # niced, as telemetry is: the viewer gives way to the critical path
+                    return "watch live with: nice -n 10 rerun --connect " + line.split(
                         "rerun --connect", 1)[1].strip()
         if time.monotonic() >= deadline:
             return None
