@@ -2,9 +2,10 @@
 
 ``apply_priority(settings)`` (the common shell calls it after loading the configuration,
 before the bus and the workers start, so every thread inherits it) sets what
-``[processes.<name>]`` asks for and returns one warning line per thing it could not set
-(no right, no such CPU, not Linux), never raising: a process that may not raise its
-priority runs on at the one it has. ``SchedulingCalls`` holds the OS calls, so the rules are
+``[processes.<name>]`` asks for and returns a ``PriorityReport``: one warning line per thing
+it could not set (no right, no such CPU, not Linux), or an info line for a nice asked for
+only where permitted (``nice_if_permitted``), never raising: a process that may not raise
+its priority runs on at the one it has. ``SchedulingCalls`` holds the OS calls, so the rules are
 tested without changing the test process.
 """
 
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from shared.config.processes import ProcessPriority
 
@@ -48,15 +49,25 @@ class SchedulingCalls:
     set_realtime: Callable[[int], None] = _set_realtime
 
 
+@dataclass
+class PriorityReport:
+    """What ``apply_priority`` could not set: `warnings` (said as warnings) and `notes`
+    (a nice asked for only where permitted: said as info)."""
+
+    warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
 def apply_priority(
     settings: ProcessPriority | None, calls: SchedulingCalls | None = None
-) -> list[str]:
+) -> PriorityReport:
     """Set this process's niceness, CPUs and real-time priority from `settings` (None:
-    nothing); returns the warning lines of what could not be set (empty: all set)."""
+    nothing); returns the lines of what could not be set (none: all set)."""
+    report = PriorityReport()
     if settings is None:
-        return []
+        return report
     os_calls = calls or SchedulingCalls()
-    warnings: list[str] = []
+    warnings = report.warnings
     if settings.realtime_priority > 0:
         try:
             os_calls.set_realtime(settings.realtime_priority)
@@ -69,8 +80,9 @@ def apply_priority(
         if os_calls.get_nice() != settings.nice:
             os_calls.set_nice(settings.nice)
     except (AttributeError, OSError) as exc:
-        warnings.append(f"nice {settings.nice} not permitted ({_reason(exc)}): running at "
-                        "the niceness it was started with")
+        line = (f"nice {settings.nice} not permitted ({_reason(exc)}): running at the "
+                "niceness it was started with")
+        (report.notes if settings.nice_if_permitted else warnings).append(line)
     if settings.cpus:
         try:
             have = os_calls.available_cpus()
@@ -84,7 +96,7 @@ def apply_priority(
         except (AttributeError, OSError) as exc:
             warnings.append(f"cpus {list(settings.cpus)} not set ({_reason(exc)}): running "
                             "on all")
-    return warnings
+    return report
 
 
 def _reason(exc: BaseException) -> str:

@@ -292,8 +292,11 @@ def run_service(
             print(f"{name}: error: {problem}; give --out a folder you can write",
                   file=sys.stderr)
             return 2
-    for line in apply_priority(cfg.processes.of(name)):  # before any thread: all inherit it
+    priority = apply_priority(cfg.processes.of(name))  # before any thread: all inherit it
+    for line in priority.warnings:
         log.warning("[processes.%s] %s", name, line)
+    for line in priority.notes:
+        log.info("[processes.%s] %s", name, line)
     stop = threading.Event()
     install_stop_handlers(stop)
     watch = HubWatch(name, hub_endpoints(cfg.bus, name)).start()

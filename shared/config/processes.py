@@ -7,12 +7,14 @@ them. Every thread the process starts afterwards inherits them (on Linux nicenes
 and the scheduling policy are per thread and inherited by new threads).
 
 The defaults work on a 2-core laptop without root: the critical path (simulator, bridge,
-planner, VESC driver, lidar driver, router) at normal priority (nice 0), telemetry (and the
-Rerun viewer it spawns, which inherits its niceness) and the ROS 2 gateway niced, no CPU
-pinning (on two cores pinning a service leaves it waiting for its one core while the other
-idles), no real-time scheduling. A negative nice or a real-time priority needs the right
-(``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` / ``RLIMIT_RTPRIO`` of ``ulimit -e`` / ``-r``); without
-it the process says so in one warning line and runs on at the priority it had.
+planner, VESC driver, lidar driver) asks for nice -10 where permitted (``nice_if_permitted``:
+without the right it runs at normal priority, said in one info line, no warning), telemetry
+(and the Rerun viewer it spawns, which inherits its niceness) and the ROS 2 gateway niced
+(10), no CPU pinning (on two cores pinning a service leaves it waiting for its one core
+while the other idles), no real-time scheduling. A negative nice or a real-time priority
+needs the right (``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` / ``RLIMIT_RTPRIO`` of ``ulimit -e`` /
+``-r``); without it a configured one is said in one warning line and the process runs on at
+the priority it had.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ class ProcessPriority(Section):
     Attributes:
         nice: niceness the process sets for itself at start (-20 highest .. 19 lowest;
             0: the normal priority; below 0 needs the right, see the module docstring).
+        nice_if_permitted: True: a `nice` the process may not set is no warning (one info
+            line; it runs at the niceness it was started with): "higher where permitted".
         cpus: the CPUs the process may run on (``os.sched_setaffinity``; CPU numbers as
             ``nproc`` counts them; empty: all). CPUs the machine does not have are ignored,
             and with none left the process keeps all (one warning line).
@@ -37,6 +41,7 @@ class ProcessPriority(Section):
     """
 
     nice: int = Field(0, ge=-20, le=19)
+    nice_if_permitted: bool = False
     cpus: tuple[int, ...] = ()
     realtime_priority: int = Field(0, ge=0, le=99)
 
@@ -52,6 +57,8 @@ class ProcessPriority(Section):
 
 #: Telemetry and the gateway give way to the critical path.
 NICED = ProcessPriority(nice=10)
+#: The critical path: higher than normal where permitted, normal elsewhere.
+CRITICAL = ProcessPriority(nice=-10, nice_if_permitted=True)
 
 
 class ProcessSettings(Section):
@@ -59,12 +66,12 @@ class ProcessSettings(Section):
     (``shared/roster.py``; ``tests/shared/test_priority.py`` checks the two agree)."""
 
     router: ProcessPriority = ProcessPriority()
-    simulator: ProcessPriority = ProcessPriority()
-    localization_bridge: ProcessPriority = ProcessPriority()
-    planner: ProcessPriority = ProcessPriority()
+    simulator: ProcessPriority = CRITICAL
+    localization_bridge: ProcessPriority = CRITICAL
+    planner: ProcessPriority = CRITICAL
     telemetry: ProcessPriority = NICED
-    vesc_driver: ProcessPriority = ProcessPriority()
-    lidar_driver: ProcessPriority = ProcessPriority()
+    vesc_driver: ProcessPriority = CRITICAL
+    lidar_driver: ProcessPriority = CRITICAL
     ros2_gateway: ProcessPriority = NICED
 
     def of(self, process: str) -> ProcessPriority | None:

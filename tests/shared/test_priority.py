@@ -40,12 +40,17 @@ class FakeOs:
                                set_affinity, set_realtime)
 
 
-def test_the_defaults_nice_telemetry_and_leave_the_critical_path_normal() -> None:
+def test_the_defaults_raise_the_critical_path_where_permitted_and_nice_telemetry() -> None:
     cfg = RacestackConfig()
     for name in ("simulator", "localization_bridge", "planner", "vesc_driver"):
         p = cfg.processes.of(name)
-        assert p is not None and p.nice == 0 and not p.cpus and p.realtime_priority == 0
+        assert p is not None and p.nice < 0 and p.nice_if_permitted
+        assert not p.cpus and p.realtime_priority == 0
     assert cfg.processes.telemetry.nice > 0
+    # without the right the default is no warning, only a note, and the process runs on
+    fake = FakeOs(deny=("nice",))
+    report = apply_priority(cfg.processes.planner, fake.calls())
+    assert report.warnings == [] and len(report.notes) == 1 and fake.nice == 0
     assert cfg.processes.of("bench") is None  # a tool has none of its own
 
 
@@ -62,15 +67,16 @@ def test_bad_settings_are_configuration_errors(bad: dict) -> None:
 
 def test_settings_are_applied_when_permitted() -> None:
     fake = FakeOs()
-    warnings = apply_priority(ProcessPriority(nice=5, cpus=(1, 7), realtime_priority=10),
-                              fake.calls())
-    assert warnings == [] and (fake.nice, fake.cpus, fake.realtime) == (5, {1}, 10)
+    report = apply_priority(ProcessPriority(nice=5, cpus=(1, 7), realtime_priority=10),
+                            fake.calls())
+    assert report.warnings == report.notes == []
+    assert (fake.nice, fake.cpus, fake.realtime) == (5, {1}, 10)
 
 
 def test_what_is_not_permitted_is_one_warning_line_each_and_the_rest_applies() -> None:
     fake = FakeOs(deny=("realtime", "nice"))
     warnings = apply_priority(ProcessPriority(nice=-5, cpus=(0,), realtime_priority=20),
-                              fake.calls())
+                              fake.calls()).warnings
     assert len(warnings) == 2 and all("\n" not in w for w in warnings)
     assert "real-time priority 20 not permitted" in warnings[0] and "nice -5" in warnings[1]
     assert (fake.nice, fake.cpus, fake.realtime) == (0, {0}, 0)
@@ -78,7 +84,7 @@ def test_what_is_not_permitted_is_one_warning_line_each_and_the_rest_applies() -
 
 def test_cpus_the_machine_lacks_leave_the_process_on_all() -> None:
     fake = FakeOs(cpus={0, 1})
-    warnings = apply_priority(ProcessPriority(cpus=(4, 5)), fake.calls())
+    warnings = apply_priority(ProcessPriority(cpus=(4, 5)), fake.calls()).warnings
     assert len(warnings) == 1 and "none of them is available" in warnings[0]
     assert fake.cpus == {0, 1}
-    assert apply_priority(None, fake.calls()) == []
+    assert apply_priority(None, fake.calls()).warnings == []
