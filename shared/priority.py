@@ -18,8 +18,18 @@ from dataclasses import dataclass, field
 from shared.config.processes import ProcessPriority
 
 
+def _threads() -> list[int]:
+    """This process's threads (Linux: niceness, affinity and policy are per thread, and a
+    library may have started one at import, before the shell runs); [0]: this one only."""
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except (OSError, ValueError):
+        return [0]
+
+
 def _setpriority(nice: int) -> None:
-    os.setpriority(os.PRIO_PROCESS, 0, nice)
+    for tid in _threads():
+        os.setpriority(os.PRIO_PROCESS, tid, nice)
 
 
 def _getpriority() -> int:
@@ -31,11 +41,13 @@ def _available_cpus() -> set[int]:
 
 
 def _setaffinity(cpus: set[int]) -> None:
-    os.sched_setaffinity(0, cpus)
+    for tid in _threads():
+        os.sched_setaffinity(tid, cpus)
 
 
 def _set_realtime(priority: int) -> None:
-    os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
+    for tid in _threads():
+        os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(priority))
 
 
 @dataclass(frozen=True)
@@ -77,8 +89,8 @@ def apply_priority(
                 f"({_reason(exc)}): normal scheduling at nice {settings.nice}"
             )
     try:
-        if os_calls.get_nice() != settings.nice:
-            os_calls.set_nice(settings.nice)
+        if os_calls.get_nice() != settings.nice or settings.nice != 0:
+            os_calls.set_nice(settings.nice)  # every thread (one a library started too)
     except (AttributeError, OSError) as exc:
         line = (f"nice {settings.nice} not permitted ({_reason(exc)}): running at the "
                 "niceness it was started with")
