@@ -2,8 +2,8 @@
 
 Profiles, interleaved run by run on the same machine (fresh processes each run):
 
-* ``plain``: ``benchmarks.stack_latency.run`` as it is: this process is the hub, the bridge
-  and the planner are peers linked directly by gossip, plain TCP;
+* ``plain``: ``benchmarks.stack_latency.run`` as it is (its quiet phase): this process is
+  the hub, the bridge and the planner are peers linked directly by gossip, plain TCP;
 * ``mtls``: the secure profile as ``racestack up`` deploys it: the router process
   (``services.router``: mutual TLS, the access rules, its denial counting) is the hub; this
   process (identity ``simulator``: it publishes the poses and odometry), the bridge and the
@@ -125,14 +125,14 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, list[dict]] = {"plain": [], "mtls": []}
     for _ in range(args.runs):
         results["plain"].append(run_plain(args.seconds, args.rate_hz, args.odom_hz,
-                                          args.speed_mps))
+                                          args.speed_mps, phases=("quiet",))["quiet"])
         results["mtls"].append(run_mtls(args.seconds, args.rate_hz, args.odom_hz,
                                         args.speed_mps))
     print(f"poses at {args.rate_hz:g} Hz, odometry at {args.odom_hz:g} Hz, {args.runs} "
           f"interleaved run(s) of {args.seconds:g} s per profile (pose -> command, ms)")
     for name, runs in results.items():
         print(f"-- {name}")
-        for line in summarise(runs, breakdown=False):
+        for line in summarise(runs, "quiet", cpu=False):
             print(line)
     print()
     for line in table(results):

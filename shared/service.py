@@ -44,6 +44,7 @@ re-raised).
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import sys
 import threading
@@ -336,6 +337,10 @@ class Service:
         try:
             with cls.open_bus(settings) as bus:
                 svc = factory(bus)
+                # what was built lives as long as the process: out of the collector's sight,
+                # so its full collections do not walk it on a critical thread (issue 25)
+                gc.collect()
+                gc.freeze()
                 svc.announce()
                 code = svc.serve(stop)
                 svc.log.info("stopping")

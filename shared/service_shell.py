@@ -1,7 +1,9 @@
 """The common shell of every service process: arguments, config, logging, clean stop.
 
 ``run_service(name, argv, body)`` parses ``--config FILE`` (plus the service's own options),
-loads and validates the one configuration, installs SIGINT/SIGTERM handlers that set a stop
+loads and validates the one configuration, applies the process's own ``[processes.NAME]``
+scheduling (``shared.priority``: nice, CPUs, real-time priority; what it may not set is one
+warning line), installs SIGINT/SIGTERM handlers that set a stop
 event, and calls ``body(config, args, stop)``. A configuration or track error is one clear
 line and exit code 2; the body must return when ``stop`` is set (closing its Zenoh session).
 
@@ -32,6 +34,7 @@ from shared.config.bus import parse_endpoint
 from shared.extras import MissingExtraError
 from shared.messages import MessageError
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
+from shared.priority import apply_priority
 from shared.track import TrackError
 
 Body = Callable[[RacestackConfig, argparse.Namespace, threading.Event], int]
@@ -304,6 +307,11 @@ def run_service(
             print(f"{name}: error: {problem}; give --out a folder you can write",
                   file=sys.stderr)
             return 2
+    priority = apply_priority(cfg.processes.of(name))  # before any thread: all inherit it
+    for line in priority.warnings:
+        log.warning("[processes.%s] %s", name, line)
+    for line in priority.notes:
+        log.info("[processes.%s] %s", name, line)
     stop = threading.Event()
     install_stop_handlers(stop)
     watch = HubWatch(name, hub_endpoints(cfg.bus, name)).start()

@@ -63,6 +63,9 @@ class Ekf(IntEnum):
 #: State dimension.
 N = len(Ekf)
 _POSE_ROWS = (Ekf.X, Ekf.Y, Ekf.YAW)
+#: The pose block of P as a view (X, Y, YAW are the first three rows), not a fancy-index copy.
+_POSE_BLOCK = np.s_[: Ekf.YAW + 1, : Ekf.YAW + 1]
+assert _POSE_ROWS == tuple(range(Ekf.YAW + 1))
 _H_POSE = np.zeros((3, N))
 _H_POSE[0, Ekf.X] = _H_POSE[1, Ekf.Y] = _H_POSE[2, Ekf.YAW] = 1.0
 _H_SPEED = np.zeros((1, N))
@@ -166,7 +169,7 @@ def pose_innovation(b: Belief, z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray
     """Innovation (3,) of a pose `z` = [x, y, yaw] with covariance `R` (3, 3), and its
     squared Mahalanobis distance ``nu^T (H P H^T + R)^-1 nu``."""
     nu = np.array([z[0] - b.s[Ekf.X], z[1] - b.s[Ekf.Y], wrap_angle(z[2] - b.s[Ekf.YAW])])
-    S = b.P[np.ix_(_POSE_ROWS, _POSE_ROWS)] + R
+    S = b.P[_POSE_BLOCK] + R
     return nu, float(nu @ np.linalg.solve(S, nu))
 
 

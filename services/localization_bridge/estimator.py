@@ -118,6 +118,10 @@ class Estimate:
     valid: bool
 
 
+def _event_key(e: _Event) -> tuple[float, int]:
+    return (e.t_s, e.order)
+
+
 class FusedEstimator:
     """Pose, wheel odometry and IMU in, ``Estimate`` out (module docstring)."""
 
@@ -319,7 +323,7 @@ class FusedEstimator:
 
     def _index(self, t_s: float) -> int:
         """Where an event at `t_s` goes (after the events of the same stamp)."""
-        return bisect_right([e.key for e in self.events], (t_s, math.inf))
+        return bisect_right(self.events, (t_s, math.inf), key=_event_key)  # no list built
 
     def _belief_before(self, k: int) -> Belief:
         assert self.base is not None

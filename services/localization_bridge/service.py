@@ -1,13 +1,25 @@
 """The localization bridge service: pose (or lidar scan), IMU and odometry in; state out.
 
 ``vehicle/pose`` (or ``vehicle/scan`` with its own lidar particle filter), ``vehicle/imu``,
-``vehicle/odom`` in; ``state`` out at a fixed rate (``[localization] publish_rate_hz``,
-100 Hz). Tuning: ``[localization]``.
+``vehicle/odom`` in; ``state`` out. Tuning: ``[localization]``.
+
+When ``state`` goes out (``[localization] state_output``):
+
+- ``"on_pose"`` (default, event-driven): the moment a pose (or the lidar's pose) is fused,
+  from the input worker itself, so the planner, which solves on a new state, starts from
+  the newest pose without waiting for a clock. While no pose has been fused for
+  ``fallback_after_s`` (poses stopped, all gated), the output worker publishes the estimate
+  predicted to now every ``1 / publish_rate_hz`` instead (telemetry and the planner's
+  age check keep seeing the localisation age; ``valid`` turns False after
+  ``invalid_after_s``);
+- ``"fixed_rate"``: the estimate predicted to now every ``1 / publish_rate_hz`` (the old
+  bridge; the commands then answer a pose up to a period older).
 
 Threads: odometry and IMU update the core on Zenoh's threads; a worker blocks on the pose
 channel (``pose_source = "external"``) or the scan channel (``"lidar"``: scan -> particle
-filter -> its pose and covariance into the EKF); a second worker publishes the estimate
-predicted to the wall clock every period. One lock guards the core. The ``State``:
+filter -> its pose and covariance into the EKF) and publishes the state of each fused pose;
+a second worker publishes the fixed-rate or fallback state. One lock guards the core. The
+``State``:
 
 - ``source_stamp_s`` is the stamp of the newest pose the filter applied, so its age
   (``stamp_s - source_stamp_s``) is the age of the newest pose used and the planner's
@@ -24,7 +36,7 @@ next ``state`` is at the new pose instead of the gate holding the old one; readi
 at or before the teleport are dropped (counted, not reported as rejections).
 
 With ``filter = "passthrough"`` the newest pose is predicted to now by a unicycle
-(``fusion.StateAssembler``), at the same fixed rate. A State of its own that fails
+(``fusion.StateAssembler``), on the same schedule. A State of its own that fails
 validation is not sent: it is counted in ``bus.faults`` and reported on ``events/log``."""
 
 from __future__ import annotations
@@ -66,8 +78,13 @@ def state_record(est: Estimate, stamp_s: float) -> State:
     )
 
 
+#: The verdicts of a pose that moved the estimate (a state goes out at once, ``on_pose``).
+FUSED = frozenset({Verdict.APPLIED, Verdict.INITIALISED, Verdict.REINIT})
+
+
 class BridgeService(Service):
-    """Inputs into the core on arrival; ``state`` at a fixed rate (module docstring)."""
+    """Inputs into the core on arrival; ``state`` on each fused pose or at a fixed rate
+    (module docstring)."""
 
     NAME = "localization_bridge"
     PORTS = (
@@ -92,6 +109,8 @@ class BridgeService(Service):
         self._lock = threading.Lock()
         self.state_pub = self.publisher(STATE)
         self.published = 0
+        self.on_pose_output = settings.state_output == "on_pose"
+        self._last_fused = -math.inf  #: monotonic time of the newest fused pose's state [s]
         self._said: Counter[str] = Counter()
         self._quality = "none"
         self._place: Teleport | None = None  #: a teleport for the lidar's filter (scan worker)
@@ -134,13 +153,24 @@ class BridgeService(Service):
                 self.lidar.imu(msg.yaw_rate_radps)
 
     def on_pose(self, pose: Pose) -> None:
-        """An external pose into the filter."""
+        """An external pose into the filter; with ``state_output = "on_pose"`` the state it
+        gives goes out at once."""
         now = self.wall_clock()
         with self._lock:
             teleported = self.core.teleport_stamp_s
-            if teleported is None or pose.stamp_s > teleported:
+            fresh = teleported is None or pose.stamp_s > teleported
+            if fresh:
                 self.newest_pose = pose
-            self.core.pose(pose.stamp_s, pose.x_m, pose.y_m, pose.yaw_rad, pose.cov, now)
+            verdict = self.core.pose(pose.stamp_s, pose.x_m, pose.y_m, pose.yaw_rad, pose.cov,
+                                     now)
+            if not self.on_pose_output:
+                return
+            if self.settings.filter == "passthrough":
+                state = self.passthrough.on_pose(pose, now) if fresh else None
+            else:
+                state = self._fused_state(verdict, now)
+        if state is not None:
+            self._put(state, fused=True)
 
     def on_teleport(self, msg: Teleport) -> None:
         """The car was put elsewhere: the filter starts again at the announced pose."""
@@ -154,6 +184,9 @@ class BridgeService(Service):
                                     yaw_rad=msg.yaw_rad)
             if self.lidar is not None:
                 self._place = msg
+            state = self._now_state(now) if self.on_pose_output else None
+        if state is not None:  # the car is there now: say so at once
+            self._put(state, fused=True)
         self.say(LogLevelName.INFO, f"teleport: state re-initialised at ({msg.x_m:.2f}, "
                  f"{msg.y_m:.2f}) m, {msg.yaw_rad:.2f} rad", limit="teleport")
 
@@ -173,7 +206,33 @@ class BridgeService(Service):
         e = got.estimate
         now = self.wall_clock()
         with self._lock:
-            self.core.pose(got.t_s, e.x_m, e.y_m, e.yaw_rad, e.cov, now)
+            verdict = self.core.pose(got.t_s, e.x_m, e.y_m, e.yaw_rad, e.cov, now)
+            state = self._fused_state(verdict, now) if self.on_pose_output else None
+        if state is not None:
+            self._put(state, fused=True)
+
+    def _fused_state(self, verdict: Verdict, now: float) -> State | None:
+        """The state of a pose the filter just fused at `now` (None: it was not fused).
+        Called holding the lock; the quality check is the fallback's (it says lines)."""
+        if verdict not in FUSED:
+            return None
+        return state_record(self.core.estimate(now), now)
+
+    def _now_state(self, now: float) -> State:
+        """The state at `now` after a teleport (holding the lock): the filter's, or with
+        ``filter = "passthrough"`` the announced pose's."""
+        if self.settings.filter == "passthrough" and self.newest_pose is not None:
+            return self.passthrough.on_pose(self.newest_pose, now)
+        return state_record(self.core.estimate(now), now)
+
+    def _put(self, state: State, fused: bool = False) -> None:
+        """Publish one state (`fused`: of a pose just fused); a fault is counted and
+        reported, never raised."""
+        with self.bus.faults.guard(self.state_pub.key):
+            if fused:
+                self._last_fused = self.clock()
+            self.state_pub.put(state)
+            self.published += 1
 
     def receive(self) -> None:
         """The input worker: every pose (or scan) as it arrives, until the bus closes."""
@@ -207,17 +266,23 @@ class BridgeService(Service):
             return self.core.initialised or self.newest_pose is not None
 
     def publish_loop(self, stop: threading.Event) -> None:
-        """The output worker: one State every ``1 / publish_rate_hz`` until `stop`, from the
-        first pose on."""
+        """The output worker, until `stop`, from the first pose on: one State every
+        ``1 / publish_rate_hz``; with ``state_output = "on_pose"`` only while no state has
+        gone out for ``fallback_after_s`` (then it sleeps until that could be so, and the
+        fused states' quality is judged here only while it is not "ok")."""
         period = 1.0 / self.settings.publish_rate_hz
-        key = self.state_pub.key
+        quiet_s = self.settings.fallback_after_s
         next_t = self.clock()
         while not stop.is_set():
-            if self.started():
-                with self.bus.faults.guard(key):  # counted and reported, never raised
-                    self.state_pub.put(self.current_state())
-                    self.published += 1
+            now = self.clock()
+            quiet = not self.on_pose_output or now - self._last_fused >= quiet_s
+            if self.started() and (quiet or self._quality != "ok"):
+                state = self.current_state()  # also says a change of quality
+                if quiet:
+                    self._put(state)
             next_t += period
+            if not quiet:  # the poses drive the output: look again when they might not
+                next_t = max(next_t, self._last_fused + quiet_s)
             wait = next_t - self.clock()
             if wait < -period:  # far behind (a stalled machine): realign, no burst
                 next_t, wait = self.clock(), 0.0

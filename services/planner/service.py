@@ -1,9 +1,14 @@
 """The planner service: ``state`` in, ``cmd/drive`` and ``planner/plan`` out, over Zenoh.
 
-Event-driven: a worker thread blocks on ``state`` (``Bus.subscribe_channel``) and plans each
-new ``State`` at once (low pose-to-command latency), at most
-once per planner period (a state arriving sooner than ``MIN_PERIOD_FRACTION * dt_s`` after
-the last solve is skipped, the next one is used). A state older than ``stale_state_s``
+Event-driven: a worker thread blocks on ``state`` (``Bus.subscribe_channel``) and plans a
+new ``State`` at once (low pose-to-command latency), at most once per planner period: the
+solve is triggered by the first state of a NEW pose (``source_stamp_s`` newer than the one
+last solved; the bridge publishes one the moment it fuses a pose) at least
+``MIN_PERIOD_FRACTION * dt_s`` after the last solve, so each solve starts from the newest
+pose and the solves keep to the pose's arrival. A state of no new pose (the bridge's
+fallback prediction, or a fixed-rate bridge's repeat) is solved only once
+``LATE_PERIOD_FRACTION * dt_s`` have passed without a new pose (a slow localiser keeps
+the control going). A state older than ``stale_state_s``
 (by its ``source_stamp_s`` against this machine's wall clock) gives a braking command
 (speed 0) at once, never a guess. No state at all for ``stale_state_s`` is a DEADLINE, not
 a poll: each state re-arms a ``BrakeDeadline`` and a second worker waits on a condition
@@ -43,6 +48,8 @@ from shared.track import load_track
 log = logging.getLogger(__name__)
 #: A new state is solved only once this share of the planner period has passed.
 MIN_PERIOD_FRACTION = 0.8
+#: ... and a state of no new pose only once this share has passed.
+LATE_PERIOD_FRACTION = 1.5
 
 
 def plan_message(res: SolveResult, stamp_s: float, source_stamp_s: float) -> Plan:
@@ -122,7 +129,8 @@ class PlannerShell(Service):
         self.cmd_pub = self.publisher(DRIVE_CMD)
         self.plan_pub = self.publisher(PLAN)
         self.states = self.subscribe_channel(STATE)
-        self.last_solve = 0.0
+        self.last_solve = -float("inf")
+        self.solved_source_s = -float("inf")  #: ``source_stamp_s`` of the last solve's state
         self.last_state = self.clock()
         self.last_state_wall_s = self.wall_clock()  #: wall time of the last state's arrival [s]
         self.deadline = BrakeDeadline(self.stale_s, self.period, self.last_state)
@@ -165,9 +173,13 @@ class PlannerShell(Service):
             self.braking = True
             self.brake()
             return
-        if self.clock() - self.last_solve < MIN_PERIOD_FRACTION * self.period:
+        now = self.clock()
+        since = now - self.last_solve
+        fresh = st.source_stamp_s > self.solved_source_s
+        if since < (MIN_PERIOD_FRACTION if fresh else LATE_PERIOD_FRACTION) * self.period:
             return
-        self.last_solve = self.clock()
+        self.last_solve = now
+        self.solved_source_s = st.source_stamp_s
         res = self.planner.step(st.x_m, st.y_m, st.yaw_rad, on_command=self.publish_command)
         if self.command_yield_s > 0.0:  # let the command go out before the rest of the work
             time.sleep(self.command_yield_s)

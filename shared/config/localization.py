@@ -75,7 +75,15 @@ class LocalizationSettings(Section):
         start_s_m: where the car starts, as arc length from the start line [m] (default: the
             simulator's start, its CoG 0.3 m past the line for the out lap, and the rear
             axle lr = 0.17 m behind the CoG).
-        publish_rate_hz: rate of ``state`` [Hz].
+        state_output: when ``state`` goes out: "on_pose" (default: at once when a pose, or
+            the lidar's pose, is fused, so the planner solves from the newest pose) or
+            "fixed_rate" (every ``1 / publish_rate_hz``, predicted to now: the old bridge).
+        publish_rate_hz: rate of ``state`` with ``state_output = "fixed_rate"``; with
+            "on_pose" the rate of the predicted fallback state while no pose has been fused
+            for `fallback_after_s` [Hz].
+        fallback_after_s: "on_pose": no state for this long (no pose fused) and the bridge
+            publishes the prediction at `publish_rate_hz` until a pose is fused again; above
+            the pose interval (25 ms at 40 Hz, 50 ms for the 20 Hz lidar) [s].
         history_s: measurements are kept this long for re-propagation; older stamps are
             rejected as stale [s].
         future_tolerance_s: stamps at most this far ahead of the bridge's clock are taken
@@ -108,7 +116,9 @@ class LocalizationSettings(Section):
     init: Literal["start", "global"] = "start"
     initial_pose: tuple[float, float, float] | None = None
     start_s_m: float = Field(0.13, ge=-1e4, le=1e4, allow_inf_nan=False)
+    state_output: Literal["on_pose", "fixed_rate"] = "on_pose"
     publish_rate_hz: float = Field(100.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    fallback_after_s: float = Field(0.075, gt=0.0, le=10.0, allow_inf_nan=False)
     history_s: float = Field(0.5, gt=0.0, le=10.0, allow_inf_nan=False)
     future_tolerance_s: float = Field(0.05, ge=0.0, le=10.0, allow_inf_nan=False)
     degraded_after_s: float = Field(0.1, gt=0.0, le=60.0, allow_inf_nan=False)

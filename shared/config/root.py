@@ -36,6 +36,7 @@ from shared.config.bus import BusSettings
 from shared.config.lidar import LidarDriverSettings
 from shared.config.localization import LocalizationSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
+from shared.config.processes import ProcessSettings
 from shared.config.ros2 import Ros2Settings
 from shared.config.simulator import SimulatorSettings
 from shared.config.telemetry import TelemetrySettings
@@ -93,6 +94,7 @@ class RacestackConfig(Section):
     lidar_driver: LidarDriverSettings = LidarDriverSettings()
     telemetry: TelemetrySettings = TelemetrySettings()
     ros2: Ros2Settings = Ros2Settings()
+    processes: ProcessSettings = ProcessSettings()
 
     @model_validator(mode="before")
     @classmethod

@@ -1,4 +1,5 @@
-"""The bridge's shell on the in-process bus: fixed-rate state, stamp rejections reported,
+"""The bridge's shell on the in-process bus: state on each fused pose (and the fallback when
+poses stop), fixed-rate state, stamp rejections reported,
 malformed scans counted and dropped (lidar pose source), the scan checks themselves."""
 
 from __future__ import annotations
@@ -95,9 +96,55 @@ def test_rejections_are_reported_on_events_log() -> None:
     assert any("pose_future 1" in t and "pose_stale 1" in t for t in texts), texts
 
 
+def test_each_fused_pose_publishes_its_state_at_once_and_a_gated_one_does_not() -> None:
+    bus = FakeBus()
+    wall = Clock(1000.0)
+    svc = BridgeService(bus, LocalizationSettings())
+    svc.wall_clock = wall
+    svc.on_odom(Odom(stamp_s=1000.0, speed_mps=2.0, steering_rad=0.0))
+    assert not bus.sent(bus.keys.state, State)  # no pose yet: nothing
+    svc.on_pose(Pose(stamp_s=999.99, x_m=1.0, y_m=2.0, yaw_rad=0.0))
+    wall.t = 1000.025
+    svc.on_pose(Pose(stamp_s=1000.02, x_m=1.04, y_m=2.0, yaw_rad=0.0))
+    states = bus.sent(bus.keys.state, State)
+    assert [s.source_stamp_s for s in states] == pytest.approx([999.99, 1000.02])
+    assert states[-1].stamp_s == 1000.025 and states[-1].valid  # predicted to its arrival
+    wall.t = 1000.05
+    svc.on_pose(Pose(stamp_s=1000.045, x_m=40.0, y_m=2.0, yaw_rad=0.0))  # gated: no state
+    svc.on_pose(Pose(stamp_s=900.0, x_m=1.0, y_m=2.0, yaw_rad=0.0))  # stale: no state
+    assert len(bus.sent(bus.keys.state, State)) == 2
+    wall.t = 1000.06
+    svc.on_teleport(Teleport(stamp_s=1000.055, x_m=5.0, y_m=1.0, yaw_rad=0.5, speed_mps=0.0))
+    st = bus.sent(bus.keys.state, State)[-1]  # the teleport's state goes out at once
+    assert len(bus.sent(bus.keys.state, State)) == 3
+    assert (st.x_m, st.y_m, st.stamp_s) == (pytest.approx(5.0), pytest.approx(1.0), 1000.06)
+
+
+def test_the_fallback_state_goes_out_only_while_no_pose_is_fused() -> None:
+    bus = FakeBus()
+    svc = BridgeService(bus, LocalizationSettings(fallback_after_s=0.05, publish_rate_hz=100.0))
+    stop = threading.Event()
+    worker = threading.Thread(target=svc.publish_loop, args=(stop,))
+    worker.start()
+    try:
+        time.sleep(0.2)
+        assert not bus.sent(bus.keys.state, State)  # nothing before the first pose
+        stamp = time.time()
+        svc.on_pose(Pose(stamp_s=stamp, x_m=1.0, y_m=2.0, yaw_rad=0.0))
+        time.sleep(0.5)  # the poses stopped: predictions of the same pose follow
+    finally:
+        stop.set()
+        worker.join(timeout=5.0)
+    assert not worker.is_alive()
+    states = bus.sent(bus.keys.state, State)
+    assert len(states) >= 2 and all(s.source_stamp_s == stamp for s in states)
+    assert states[1].stamp_s - states[0].stamp_s >= 0.05  # not before fallback_after_s
+
+
 def test_the_service_publishes_state_at_its_fixed_rate_from_the_first_pose() -> None:
     bus = FakeBus()
-    svc = BridgeService(bus, LocalizationSettings(publish_rate_hz=100.0))
+    svc = BridgeService(bus, LocalizationSettings(publish_rate_hz=100.0,
+                                                  state_output="fixed_rate"))
     stop = threading.Event()
     worker = threading.Thread(target=svc.publish_loop, args=(stop,))
     worker.start()

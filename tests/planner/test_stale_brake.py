@@ -177,3 +177,42 @@ def test_stale_brake_real_time_delays() -> None:
     late = [d for d in ms if d > BRAKE_BOUND_S * 1e3]
     if late:
         print(f"  {len(late)} of {TRIALS} wake-ups late on this loaded machine: {late}")
+
+
+def test_a_solve_is_triggered_by_the_first_state_of_a_new_pose_once_per_period() -> None:
+    """Issue 25: the planner solves on the state of a new pose (the bridge publishes one per
+    fused pose), at most once per period; a repeat of the same pose (the bridge's fallback
+    prediction) only once 1.5 periods have passed without a new pose."""
+    settings = PlannerSettings()
+    dt = settings.dt_s
+    mono, wall = FakeClock(100.0), FakeClock(1000.0)
+    planner = StubPlanner(settings)
+    shell = PlannerShell(planner, FakeBus(), clock=mono, wall_clock=wall)
+
+    def state(pose_stamp: float) -> None:
+        shell.on_state(State(stamp_s=wall.t, x_m=0.0, y_m=0.0, yaw_rad=0.0, speed_mps=1.0,
+                             yaw_rate_radps=0.0, steering_rad=0.0,
+                             source_stamp_s=pose_stamp, valid=True))
+
+    def at(t: float) -> None:  # both clocks to `t` after the start
+        mono.t, wall.t = 100.0 + t, 1000.0 + t
+
+    at(0.0)
+    state(1000.0)
+    assert planner.steps == 1  # the first state is solved at once
+    at(0.025)
+    state(1000.025)  # a new pose, but within the period: skipped
+    at(0.05)
+    state(1000.05)  # the next pose, a period later: solved
+    assert planner.steps == 2
+    at(0.0625)
+    state(1000.05)  # the same pose again (a prediction): not solved
+    at(0.05 + 1.4 * dt)
+    state(1000.05)
+    assert planner.steps == 2
+    at(0.05 + 1.5 * dt)
+    state(1000.05)  # no new pose for 1.5 periods: the prediction keeps the control going
+    assert planner.steps == 3
+    at(0.05 + 1.5 * dt + 0.8 * dt)
+    state(1000.0 + 0.05 + 2.3 * dt)  # a new pose 0.8 periods later: solved
+    assert planner.steps == 4

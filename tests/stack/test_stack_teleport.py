@@ -95,7 +95,7 @@ def test_after_a_reset_the_state_is_at_the_new_pose_within_50_ms(tmp_path: Path)
     old = [s for s in states if s.stamp_s < tp.stamp_s]
     assert old and error(old[-1]) > 1.0, "the car was not far from the start before the reset"
     late = [s for s in states if s.stamp_s >= tp.stamp_s + 0.05]
-    assert len(late) > 20
+    assert len(late) > 10  # 0.45 s of states, one per fused pose (40 Hz), since issue 25
     assert all(s.valid and error(s) < 0.1 for s in late), [
         (round(s.stamp_s - tp.stamp_s, 3), round(error(s), 3)) for s in late if error(s) >= 0.1
     ]

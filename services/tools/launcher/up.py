@@ -383,8 +383,9 @@ def _connect_line(log_path: Path | None, timeout_s: float) -> str | None:
         if log_path.exists():
             for line in log_path.read_text(errors="replace").splitlines():
                 if "rerun --connect" in line:
-                    return f"watch live with: {runnable('rerun')} --connect " + line.split(
-                        "rerun --connect", 1)[1].strip()
+                    # niced, as telemetry is: the viewer gives way to the critical path
+                    return (f"watch live with: nice -n 10 {runnable('rerun')} --connect "
+                            + line.split("rerun --connect", 1)[1].strip())
         if time.monotonic() >= deadline:
             return None
         time.sleep(0.1)

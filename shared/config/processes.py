@@ -1,0 +1,81 @@
+"""Scheduling of each process (``[processes]``): CPU affinity, nice and real-time priority.
+
+One ``ProcessPriority`` per process of the roster (``[processes.planner]``, ...), applied by
+each process to itself at its start (``shared.priority.apply_priority``, from the common
+shell), so ``racestack up``, ``racestack run NAME``, the benchmarks and a container all get
+them. Every thread the process starts afterwards inherits them (on Linux niceness, affinity
+and the scheduling policy are per thread and inherited by new threads).
+
+The defaults work on a 2-core laptop without root: the critical path (simulator, bridge,
+planner, VESC driver, lidar driver) asks for nice -10 where permitted (``nice_if_permitted``:
+without the right it runs at normal priority, said in one info line, no warning), telemetry
+(and the Rerun viewer it spawns, which inherits its niceness) and the ROS 2 gateway niced
+(10), no CPU pinning (on two cores pinning a service leaves it waiting for its one core
+while the other idles), no real-time scheduling. A negative nice or a real-time priority
+needs the right (``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` / ``RLIMIT_RTPRIO`` of ``ulimit -e`` /
+``-r``); without it a configured one is said in one warning line and the process runs on at
+the priority it had.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, field_validator
+
+from shared.config.base import Section
+
+
+class ProcessPriority(Section):
+    """How one process is scheduled.
+
+    Attributes:
+        nice: niceness the process sets for itself at start (-20 highest .. 19 lowest;
+            0: the normal priority; below 0 needs the right, see the module docstring).
+        nice_if_permitted: True: a `nice` the process may not set is no warning (one info
+            line; it runs at the niceness it was started with): "higher where permitted".
+        cpus: the CPUs the process may run on (``os.sched_setaffinity``; CPU numbers as
+            ``nproc`` counts them; empty: all). CPUs the machine does not have are ignored,
+            and with none left the process keeps all (one warning line).
+        realtime_priority: above 0: the ``SCHED_RR`` real-time priority (1-99) the process
+            asks for at start (needs the right; without it one warning line and the nice
+            above is kept); 0: normal scheduling.
+    """
+
+    nice: int = Field(0, ge=-20, le=19)
+    nice_if_permitted: bool = False
+    cpus: tuple[int, ...] = ()
+    realtime_priority: int = Field(0, ge=0, le=99)
+
+    @field_validator("cpus")
+    @classmethod
+    def _cpus_valid(cls, cpus: tuple[int, ...]) -> tuple[int, ...]:
+        if any(c < 0 or c > 1023 for c in cpus):
+            raise ValueError("cpus: CPU numbers from 0 to 1023")
+        if len(set(cpus)) != len(cpus):
+            raise ValueError("cpus: each CPU once")
+        return cpus
+
+
+#: Telemetry and the gateway give way to the critical path.
+NICED = ProcessPriority(nice=10)
+#: The critical path: higher than normal where permitted, normal elsewhere.
+CRITICAL = ProcessPriority(nice=-10, nice_if_permitted=True)
+
+
+class ProcessSettings(Section):
+    """The ``[processes]`` section: one ``ProcessPriority`` per process of the roster
+    (``shared/roster.py``; ``tests/shared/test_priority.py`` checks the two agree)."""
+
+    router: ProcessPriority = ProcessPriority()
+    simulator: ProcessPriority = CRITICAL
+    localization_bridge: ProcessPriority = CRITICAL
+    planner: ProcessPriority = CRITICAL
+    telemetry: ProcessPriority = NICED
+    vesc_driver: ProcessPriority = CRITICAL
+    lidar_driver: ProcessPriority = CRITICAL
+    ros2_gateway: ProcessPriority = NICED
+
+    def of(self, process: str) -> ProcessPriority | None:
+        """The settings of `process` (a roster name; None for a name without its own, such
+        as a tool)."""
+        value = getattr(self, process, None) if process in type(self).model_fields else None
+        return value if isinstance(value, ProcessPriority) else None

@@ -1,0 +1,119 @@
+"""A process's own scheduling at start: nice, CPU affinity, real-time priority.
+
+``apply_priority(settings)`` (the common shell calls it after loading the configuration,
+before the bus and the workers start, so every thread inherits it) sets what
+``[processes.<name>]`` asks for and returns a ``PriorityReport``: one warning line per thing
+it could not set (no right, no such CPU, not Linux), or an info line for a nice asked for
+only where permitted (``nice_if_permitted``), never raising: a process that may not raise
+its priority runs on at the one it has. ``SchedulingCalls`` holds the OS calls, so the rules are
+tested without changing the test process.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from shared.config.processes import ProcessPriority
+
+
+def _threads() -> list[int]:
+    """This process's threads (Linux: niceness, affinity and policy are per thread, and a
+    library may have started one at import, before the shell runs); [0]: this one only."""
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except (OSError, ValueError):
+        return [0]
+
+
+def _setpriority(nice: int) -> None:
+    for tid in _threads():
+        os.setpriority(os.PRIO_PROCESS, tid, nice)
+
+
+def _getpriority() -> int:
+    return os.getpriority(os.PRIO_PROCESS, 0)
+
+
+def _available_cpus() -> set[int]:
+    return set(os.sched_getaffinity(0))
+
+
+def _setaffinity(cpus: set[int]) -> None:
+    for tid in _threads():
+        os.sched_setaffinity(tid, cpus)
+
+
+def _set_realtime(priority: int) -> None:
+    for tid in _threads():
+        os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(priority))
+
+
+@dataclass(frozen=True)
+class SchedulingCalls:
+    """The OS calls ``apply_priority`` makes (Linux's, by default)."""
+
+    get_nice: Callable[[], int] = _getpriority
+    set_nice: Callable[[int], None] = _setpriority
+    available_cpus: Callable[[], set[int]] = _available_cpus
+    set_affinity: Callable[[set[int]], None] = _setaffinity
+    set_realtime: Callable[[int], None] = _set_realtime
+
+
+@dataclass
+class PriorityReport:
+    """What ``apply_priority`` could not set: `warnings` (said as warnings) and `notes`
+    (a nice asked for only where permitted: said as info)."""
+
+    warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def apply_priority(
+    settings: ProcessPriority | None, calls: SchedulingCalls | None = None
+) -> PriorityReport:
+    """Set this process's niceness, CPUs and real-time priority from `settings` (None:
+    nothing); returns the lines of what could not be set (none: all set)."""
+    report = PriorityReport()
+    if settings is None:
+        return report
+    os_calls = calls or SchedulingCalls()
+    warnings = report.warnings
+    if settings.realtime_priority > 0:
+        try:
+            os_calls.set_realtime(settings.realtime_priority)
+        except (AttributeError, OSError) as exc:  # no right (EPERM), not Linux
+            warnings.append(
+                f"real-time priority {settings.realtime_priority} not permitted "
+                f"({_reason(exc)}): normal scheduling at nice {settings.nice}"
+            )
+    try:
+        if os_calls.get_nice() != settings.nice or settings.nice != 0:
+            os_calls.set_nice(settings.nice)  # every thread (one a library started too)
+    except (AttributeError, OSError) as exc:
+        line = (f"nice {settings.nice} not permitted ({_reason(exc)}): running at the "
+                "niceness it was started with")
+        (report.notes if settings.nice_if_permitted else warnings).append(line)
+    if settings.cpus:
+        try:
+            have = os_calls.available_cpus()
+            want = set(settings.cpus) & have
+            if want:
+                if want != have:
+                    os_calls.set_affinity(want)
+            else:
+                warnings.append(f"cpus {list(settings.cpus)}: none of them is available "
+                                f"({sorted(have)}): running on all")
+        except (AttributeError, OSError) as exc:
+            warnings.append(f"cpus {list(settings.cpus)} not set ({_reason(exc)}): running "
+                            "on all")
+    return report
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, PermissionError):
+        return "no permission: needs CAP_SYS_NICE or a raised ulimit -e / -r"
+    if isinstance(exc, AttributeError):
+        return "not supported on this system"
+    return str(exc) or type(exc).__name__

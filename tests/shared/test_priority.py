@@ -1,0 +1,90 @@
+"""``[processes]``: each process's scheduling settings, validated, and applied (or one warning
+line each) by ``shared.priority.apply_priority``, on fake OS calls (the test process keeps
+its own scheduling)."""
+
+from __future__ import annotations
+
+import pytest
+
+from shared.config import ConfigError, RacestackConfig, config_from_dict
+from shared.config.processes import ProcessPriority, ProcessSettings
+from shared.priority import SchedulingCalls, apply_priority
+from shared.roster import ROSTER
+
+
+class FakeOs:
+    """Records the calls; `deny` names the ones that raise PermissionError."""
+
+    def __init__(self, nice: int = 0, cpus: set[int] | None = None, deny: tuple = ()) -> None:
+        self.nice, self.cpus, self.deny = nice, cpus or {0, 1}, deny
+        self.realtime = 0
+
+    def calls(self) -> SchedulingCalls:
+        def guard(name: str) -> None:
+            if name in self.deny:
+                raise PermissionError(1, "Operation not permitted")
+
+        def set_nice(n: int) -> None:
+            guard("nice")
+            self.nice = n
+
+        def set_affinity(c: set[int]) -> None:
+            guard("cpus")
+            self.cpus = c
+
+        def set_realtime(p: int) -> None:
+            guard("realtime")
+            self.realtime = p
+
+        return SchedulingCalls(lambda: self.nice, set_nice, lambda: set(self.cpus),
+                               set_affinity, set_realtime)
+
+
+def test_the_defaults_raise_the_critical_path_where_permitted_and_nice_telemetry() -> None:
+    cfg = RacestackConfig()
+    for name in ("simulator", "localization_bridge", "planner", "vesc_driver"):
+        p = cfg.processes.of(name)
+        assert p is not None and p.nice < 0 and p.nice_if_permitted
+        assert not p.cpus and p.realtime_priority == 0
+    assert cfg.processes.telemetry.nice > 0
+    # without the right the default is no warning, only a note, and the process runs on
+    fake = FakeOs(deny=("nice",))
+    report = apply_priority(cfg.processes.planner, fake.calls())
+    assert report.warnings == [] and len(report.notes) == 1 and fake.nice == 0
+    assert cfg.processes.of("bench") is None  # a tool has none of its own
+
+
+def test_every_roster_process_has_its_settings() -> None:
+    assert {p.name for p in ROSTER} == set(ProcessSettings.model_fields)
+
+
+@pytest.mark.parametrize("bad", [{"nice": 20}, {"nice": -21}, {"cpus": [-1]}, {"cpus": [0, 0]},
+                                 {"realtime_priority": 100}, {"niceness": 3}])
+def test_bad_settings_are_configuration_errors(bad: dict) -> None:
+    with pytest.raises(ConfigError):
+        config_from_dict({"processes": {"planner": bad}})
+
+
+def test_settings_are_applied_when_permitted() -> None:
+    fake = FakeOs()
+    report = apply_priority(ProcessPriority(nice=5, cpus=(1, 7), realtime_priority=10),
+                            fake.calls())
+    assert report.warnings == report.notes == []
+    assert (fake.nice, fake.cpus, fake.realtime) == (5, {1}, 10)
+
+
+def test_what_is_not_permitted_is_one_warning_line_each_and_the_rest_applies() -> None:
+    fake = FakeOs(deny=("realtime", "nice"))
+    warnings = apply_priority(ProcessPriority(nice=-5, cpus=(0,), realtime_priority=20),
+                              fake.calls()).warnings
+    assert len(warnings) == 2 and all("\n" not in w for w in warnings)
+    assert "real-time priority 20 not permitted" in warnings[0] and "nice -5" in warnings[1]
+    assert (fake.nice, fake.cpus, fake.realtime) == (0, {0}, 0)
+
+
+def test_cpus_the_machine_lacks_leave_the_process_on_all() -> None:
+    fake = FakeOs(cpus={0, 1})
+    warnings = apply_priority(ProcessPriority(cpus=(4, 5)), fake.calls()).warnings
+    assert len(warnings) == 1 and "none of them is available" in warnings[0]
+    assert fake.cpus == {0, 1}
+    assert apply_priority(None, fake.calls()).warnings == []
