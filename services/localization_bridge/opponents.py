@@ -294,8 +294,8 @@ class OpponentDetector:
 class TrackerParams:
     """Settings of the tracker (module docstring)."""
 
-    accel_std_mps2: float = 3.0
-    meas_std_m: float = 0.03
+    accel_std_mps2: float = 30.0
+    meas_std_m: float = 0.02
     init_speed_std_mps: float = 3.0
     gate_chi2: float = 13.8
     confirm_hits: int = 3
