@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             r = _noisy(seen.astype(float), rng, a.noise, rmax)
             t0 = time.perf_counter()
             dets = det.detect(r, sc.angle_min_rad, sc.angle_increment_rad, rmax, tuple(ego))
-            tracks = tracker.update(t, [(d.x_m, d.y_m) for d in dets])
+            tracks = tracker.update(t, [(d.x_m, d.y_m, d.yaw_rad) for d in dets])
             cost_ms.append(1e3 * (time.perf_counter() - t0))
             n_scans += 1
             errs = [math.hypot(d.x_m - opp[0], d.y_m - opp[1]) for d in dets]

@@ -24,7 +24,8 @@ Detection, per scan (``OpponentDetector.detect``), with the sensor pose known in
 Tracking (``OpponentTracker``): a constant-velocity Kalman filter per track, state
 ``[x, y, vx, vy]`` (map frame, m and m/s), white-acceleration process noise
 (``accel_std_mps2``), position measurements with ``meas_std_m``; association by gated
-(chi-square 2-dof ``gate_chi2``) Mahalanobis distance, nearest pairs first; a detection
+(chi-square 2-dof ``gate_chi2``) Mahalanobis distance, nearest pairs first; a detection's
+box heading adds the pseudo-measurement "no velocity across the car" (``update``); a detection
 without a track starts a tentative one (confirmed after ``confirm_hits`` hits); a track is
 dropped after ``max_misses`` scans in a row without a detection (coasting through occlusion
 keeps its id).
@@ -294,10 +295,11 @@ class OpponentDetector:
 class TrackerParams:
     """Settings of the tracker (module docstring)."""
 
-    accel_std_mps2: float = 30.0
+    accel_std_mps2: float = 8.0
     meas_std_m: float = 0.02
     init_speed_std_mps: float = 3.0
     gate_chi2: float = 13.8
+    lateral_speed_std_mps: float = 0.15
     confirm_hits: int = 3
     max_misses: int = 8
 
@@ -361,8 +363,15 @@ class OpponentTracker:
         tr.P = F @ tr.P @ F.T + Q
         tr.t_s = t_s
 
-    def update(self, t_s: float, detections: list[tuple[float, float]]) -> list[OpponentTrack]:
-        """Advance every track to `t_s` [s] and take this scan's detections (x m, y m).
+    def update(self, t_s: float, detections: list[tuple[float, ...]]) -> list[OpponentTrack]:
+        """Advance every track to `t_s` [s] and take this scan's detections.
+
+        Args:
+            t_s: the scan's time [s].
+            detections: (x m, y m) or (x m, y m, yaw rad) each; with a yaw (the box's long
+                axis, modulo pi) the velocity across it is also measured as 0 with
+                ``lateral_speed_std_mps`` (a car moves along its axis: the pseudo-measurement
+                that keeps the constant-velocity model from lagging through bends).
 
         Returns:
             the confirmed tracks after the update.
@@ -370,7 +379,9 @@ class OpponentTracker:
         p = self.params
         for tr in self.tracks:
             self._predict(tr, t_s)
-        z = np.asarray(detections, dtype=float).reshape(-1, 2)
+        rows = [tuple(float(v) for v in d) for d in detections]
+        z = np.array([r[:2] for r in rows], dtype=float).reshape(-1, 2)
+        yaws = [r[2] if len(r) > 2 else None for r in rows]
         n_t, n_d = len(self.tracks), z.shape[0]
         cost = np.full((n_t, n_d), np.inf)
         for i, tr in enumerate(self.tracks):
@@ -389,7 +400,7 @@ class OpponentTracker:
                 continue
             used_t.add(i)
             used_d.add(j)
-            self._correct(self.tracks[i], z[j])
+            self._correct(self.tracks[i], z[j], yaws[j])
         for i, tr in enumerate(self.tracks):
             if i not in used_t:
                 tr.misses += 1
@@ -404,12 +415,19 @@ class OpponentTracker:
             tr.confirmed = tr.confirmed or tr.hits >= p.confirm_hits
         return [tr for tr in self.tracks if tr.confirmed]
 
-    def _correct(self, tr: OpponentTrack, z: np.ndarray) -> None:
+    def _correct(self, tr: OpponentTrack, z: np.ndarray, yaw: float | None = None) -> None:
+        """Kalman correction by position `z` (2,) [m] and, with `yaw` [rad], the zero
+        velocity across the car's axis (Joseph form)."""
         H, R = self._H, self._R
+        if yaw is not None:
+            lat = np.array([[0.0, 0.0, -math.sin(yaw), math.cos(yaw)]])
+            H = np.vstack([H, lat])
+            R = np.diag([R[0, 0], R[1, 1], self.params.lateral_speed_std_mps**2])
+            z = np.array([z[0], z[1], 0.0])
         S = H @ tr.P @ H.T + R
         K = tr.P @ H.T @ np.linalg.inv(S)
         tr.x = tr.x + K @ (z - H @ tr.x)
         ikh = np.eye(4) - K @ H
-        tr.P = ikh @ tr.P @ ikh.T + K @ R @ K.T  # Joseph form
+        tr.P = ikh @ tr.P @ ikh.T + K @ R @ K.T
         tr.hits += 1
         tr.misses = 0
