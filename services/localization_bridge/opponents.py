@@ -12,8 +12,9 @@ Detection, per scan (``OpponentDetector.detect``), with the sensor pose known in
    L-shape fit (angles over 90 deg, the closeness criterion: points near the two nearest
    edges score high), the edges as robust extremes (the median of the projections within
    ``edge_band_m`` of each extreme); the car's footprint (``length_m`` along the axis the
-   points span longer than the width, else the one closer to the line of sight: a car seen
-   from behind shows its width) is then placed per axis against the edge facing the sensor
+   points span longer than the width, else the one nearer the track's direction there when
+   the detector has the track, else the one nearer the line of sight: a car seen from
+   behind shows its width) is then placed per axis against the edge facing the sensor
    when the sensor lies outside the cluster's span on that axis (only that face is seen),
    else centred on the span (both ends seen), except that an edge made by an occluder (the
    neighbouring beam returns nearer) is never an anchor: the opposite edge is;
