@@ -346,6 +346,8 @@ class OpponentTracker:
     def __init__(self, params: TrackerParams = TrackerParams()) -> None:
         self.params = params
         self.tracks: list[OpponentTrack] = []
+        #: detections refused so far (a non-finite value or fewer than two).
+        self.dropped = 0
         self._next_id = 1
         self._H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
         self._R = np.eye(2) * params.meas_std_m**2
@@ -373,6 +375,7 @@ class OpponentTracker:
                 axis, modulo pi) the velocity across it is also measured as 0 with
                 ``lateral_speed_std_mps`` (a car moves along its axis: the pseudo-measurement
                 that keeps the constant-velocity model from lagging through bends).
+                Detections with a non-finite value are dropped and counted (``dropped``).
 
         Returns:
             the confirmed tracks after the update.
@@ -381,6 +384,8 @@ class OpponentTracker:
         for tr in self.tracks:
             self._predict(tr, t_s)
         rows = [tuple(float(v) for v in d) for d in detections]
+        rows = [r for r in rows if len(r) >= 2 and all(math.isfinite(v) for v in r)]
+        self.dropped += len(detections) - len(rows)
         z = np.array([r[:2] for r in rows], dtype=float).reshape(-1, 2)
         yaws = [r[2] if len(r) > 2 else None for r in rows]
         n_t, n_d = len(self.tracks), z.shape[0]

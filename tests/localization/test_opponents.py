@@ -159,3 +159,10 @@ def test_tracks_die_after_max_misses_and_are_born_confirmed_late() -> None:
     for i in range(tr.params.max_misses + 1):
         tr.update(0.075 + 0.025 * i, [])
     assert tr.tracks == []
+
+
+def test_non_finite_detections_are_counted_and_dropped() -> None:
+    tr = OpponentTracker()
+    tr.update(0.0, [(math.nan, 1.0), (1.0, 2.0, math.inf), (1.0,), (2.0, 2.0)])
+    assert tr.dropped == 3
+    assert [t.position for t in tr.tracks] == [(2.0, 2.0)]
