@@ -13,7 +13,7 @@ from services.simulator.actuators import CommandDelayLine, speed_control, steeri
 from services.simulator.dynamics import SingleTrackModel, TyreState
 from services.simulator.integrate import rk4_step
 from services.simulator.laps import LapEvent, LapTimer, centreline_pose
-from services.simulator.lidar import LidarScanner, distance_transform
+from services.simulator.lidar import LidarScanner, cast_on_boxes, distance_transform
 from services.simulator.sensors import (
     ImuMeasurement,
     ImuSensor,
@@ -60,6 +60,7 @@ __all__ = [
     "StepResult",
     "TyreState",
     "VehicleState",
+    "cast_on_boxes",
     "centreline_pose",
     "distance_transform",
     "rear_axle",

@@ -1,0 +1,439 @@
+"""Opponent cars from a lidar scan (issue #24): detection and tracking, maths only (no I/O).
+
+Detection, per scan (``OpponentDetector.detect``), with the sensor pose known in the map frame:
+
+1. beam end points the map does not explain: a return inside range whose end point is more
+   than ``unexplained_m`` from the nearest wall surface of the map (the same free / blocked
+   border distance as the particle filter's likelihood field, ``wall_distance_m``) and lies
+   on a free cell (inside the track; points behind walls are map noise, not cars);
+2. clustered in beam order: consecutive unexplained beams are one cluster while the beam
+   index step is at most ``max_beam_gap`` and the end points are within ``cluster_gap_m``;
+3. fitted with a car-sized box: the heading of the cluster's rectangle by the search-based
+   L-shape fit (angles over 90 deg, the closeness criterion: points near the two nearest
+   edges score high), the edges as robust extremes (the median of the projections within
+   ``edge_band_m`` of each extreme); the car's footprint (``length_m`` along the axis the
+   points span longer than the width, else the one nearer the track's direction there when
+   the detector has the track, else the one nearer the line of sight: a car seen from
+   behind shows its width) is then placed per axis against the edge facing the sensor
+   when the sensor lies outside the cluster's span on that axis (only that face is seen),
+   else centred on the span (both ends seen), except that an edge made by an occluder (the
+   neighbouring beam returns nearer) is never an anchor: the opposite edge is;
+4. clusters that do not look like a car are rejected: fewer than ``min_points`` points, a span
+   longer than the car's diagonal plus ``size_tol_m`` or a side longer than the car's length
+   plus ``size_tol_m``, or spans smaller than ``min_extent_m`` on both axes.
+
+Tracking (``OpponentTracker``): a constant-velocity Kalman filter per track, state
+``[x, y, vx, vy]`` (map frame, m and m/s), white-acceleration process noise
+(``accel_std_mps2``), position measurements with ``meas_std_m``; association by gated
+(chi-square 2-dof ``gate_chi2``) Mahalanobis distance, nearest pairs first; a detection's
+box heading adds the pseudo-measurement "no velocity across the car" (``update``); a detection
+without a track starts a tentative one (confirmed after ``confirm_hits`` hits); a track is
+dropped after ``max_misses`` scans in a row without a detection (coasting through occlusion
+keeps its id).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from services.localization_bridge.likelihood_field import wall_distance_m
+from shared.car import CAR
+from shared.track import Track
+from shared.track.occupancy import OccupancyGrid
+from shared.track.raycast import blocked_cells, to_grid_frame
+
+__all__ = [
+    "Detection",
+    "DetectorParams",
+    "OpponentDetector",
+    "OpponentTrack",
+    "OpponentTracker",
+    "TrackerParams",
+    "fit_car_box",
+]
+
+
+@dataclass(frozen=True)
+class DetectorParams:
+    """Settings of the detector (module docstring; lengths [m])."""
+
+    length_m: float = CAR.length_m
+    width_m: float = CAR.width_m
+    unexplained_m: float = 0.15
+    cluster_gap_m: float = 0.15
+    max_beam_gap: int = 3
+    min_points: int = 4
+    min_extent_m: float = 0.08
+    size_tol_m: float = 0.10
+    edge_band_m: float = 0.04
+    angle_step_deg: float = 1.0
+    distance_cap_m: float = 1.0
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One car-sized cluster.
+
+    Attributes:
+        x_m, y_m: centre of the fitted footprint (map frame) [m].
+        yaw_rad: heading of its long axis [rad], modulo pi (the scan cannot tell front from
+            back).
+        n_points: beams in the cluster.
+        range_m: range from the sensor to the cluster's nearest point [m].
+        points: (n, 2) the cluster's end points (map frame) [m].
+    """
+
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    n_points: int
+    range_m: float
+    points: np.ndarray = field(repr=False)
+
+
+def _robust_edges(u: np.ndarray, band_m: float) -> tuple[float, float]:
+    """Low and high edge [m] of projections `u` (n,): the median within `band_m` of each
+    extreme (range noise pushes the bare extremes outwards)."""
+    lo, hi = float(u.min()), float(u.max())
+    return float(np.median(u[u <= lo + band_m])), float(np.median(u[u >= hi - band_m]))
+
+
+def fit_car_box(
+    points: np.ndarray,
+    sensor_xy: tuple[float, float],
+    params: DetectorParams = DetectorParams(),
+    heading_hint_rad: float | None = None,
+    occluded_ends: tuple[bool, bool] = (False, False),
+) -> tuple[float, float, float] | None:
+    """The car footprint fitted to one cluster (steps 3-4 of the module docstring).
+
+    Args:
+        points: (n, 2) end points [m] (map frame), n >= 2.
+        sensor_xy: the sensor's position [m].
+        params: footprint and tolerances.
+        heading_hint_rad: the likely heading of the car [rad] (the track's direction there);
+            when the points span no more than a width, the long axis is the one nearer it
+            (without a hint: the one nearer the line of sight).
+        occluded_ends: whether the first / last point (in beam order) is cut off by something
+            nearer the sensor (the car goes on behind it): on an axis where exactly one edge
+            is such a cut end, the footprint is anchored on the other edge (the axis of a
+            cut end is the one the last few points run along towards it).
+
+    Returns:
+        (x m, y m, yaw rad) of the footprint's centre and long axis, or None when the cluster
+        is not car-sized.
+    """
+    p = np.asarray(points, dtype=float)
+    if p.shape[0] < max(2, params.min_points):
+        return None
+    centre = p.mean(axis=0)
+    q = p - centre
+    th = np.deg2rad(np.arange(0.0, 90.0, params.angle_step_deg))
+    e1 = np.stack([np.cos(th), np.sin(th)], -1)  # (A, 2)
+    c1 = q @ e1.T  # (n, A)
+    c2 = q @ np.stack([-e1[:, 1], e1[:, 0]], -1).T
+    d1 = np.minimum(c1 - c1.min(0), c1.max(0) - c1)
+    d2 = np.minimum(c2 - c2.min(0), c2.max(0) - c2)
+    score = (1.0 / np.maximum(np.minimum(d1, d2), 0.01)).sum(axis=0)
+    k = int(np.argmax(score))
+    ax = np.array([e1[k], [-e1[k, 1], e1[k, 0]]])  # (2, 2) rows: the two axes
+    proj = q @ ax.T  # (n, 2)
+    edges = [_robust_edges(proj[:, i], params.edge_band_m) for i in range(2)]
+    span = np.array([hi - lo for lo, hi in edges])
+    length, width, tol = params.length_m, params.width_m, params.size_tol_m
+    if span.max() > length + tol or math.hypot(*span) > math.hypot(length, width) + tol:
+        return None
+    if span.max() < params.min_extent_m:
+        return None
+    s = (np.asarray(sensor_xy, dtype=float) - centre) @ ax.T  # sensor on the two axes
+    if span.max() > width + tol:
+        long_i = int(np.argmax(span))
+    elif heading_hint_rad is not None:  # a width's worth seen: the axis nearer the hint
+        h = np.array([math.cos(heading_hint_rad), math.sin(heading_hint_rad)])
+        long_i = int(np.argmax(np.abs(ax @ h)))
+    else:  # ... or the one nearer the line of sight
+        long_i = int(np.argmax(np.abs(s)))
+    sizes = (length, width) if long_i == 0 else (width, length)
+    mid = np.zeros(2)
+    # a cut end continues the scan's run along the face it lies on: that axis, that way
+    back = min(3, p.shape[0] - 1)
+    run = np.array([p[0] - p[back], p[-1] - p[-1 - back]]) @ ax.T  # (2 ends, 2 axes)
+    cut_axis = np.argmax(np.abs(run), axis=1)
+    cut_sign = run[np.arange(2), cut_axis]
+    for i in range(2):
+        lo, hi = edges[i]
+        cut_lo = cut_hi = False
+        for j, cut in enumerate(occluded_ends):
+            if cut and cut_axis[j] == i:
+                cut_lo |= cut_sign[j] < 0.0
+                cut_hi |= cut_sign[j] > 0.0
+        at_lo, at_hi = lo + 0.5 * sizes[i], hi - 0.5 * sizes[i]
+        if cut_lo != cut_hi:  # one end hidden behind an occluder: the other one is real
+            mid[i] = at_hi if cut_lo else at_lo
+        elif s[i] < lo:  # the sensor faces the low edge
+            mid[i] = at_lo
+        elif s[i] > hi:
+            mid[i] = at_hi
+        else:  # both ends of this axis are seen
+            mid[i] = 0.5 * (lo + hi)
+    xy = centre + mid @ ax
+    yaw = float(math.atan2(ax[long_i, 1], ax[long_i, 0]))
+    return float(xy[0]), float(xy[1]), yaw
+
+
+class OpponentDetector:
+    """Car-sized clusters of the beams the map does not explain (module docstring).
+
+    Args:
+        grid: the map (the one the particle filter uses).
+        params: the detector's settings.
+        unknown_is_occupied: UNKNOWN cells count as walls.
+        track: optional; its direction at a cluster is the heading hint of ``fit_car_box``.
+    """
+
+    def __init__(
+        self,
+        grid: OccupancyGrid,
+        params: DetectorParams = DetectorParams(),
+        unknown_is_occupied: bool = True,
+        track: Track | None = None,
+    ) -> None:
+        self.grid = grid
+        self.track = track
+        self.params = params
+        blocked = blocked_cells(grid, unknown_is_occupied)
+        self._blocked = blocked
+        self._dist = wall_distance_m(blocked, float(grid.resolution_m), params.distance_cap_m)
+        self._rows, self._cols = blocked.shape
+
+    def unexplained(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) bool: points (n, 2) [m] on free cells farther than ``unexplained_m`` from
+        every wall (outside the map: False)."""
+        gx, gy = to_grid_frame(self.grid, xy[:, 0], xy[:, 1])
+        r = float(self.grid.resolution_m)
+        col = np.floor(gx / r).astype(np.int64)
+        row = np.floor(gy / r).astype(np.int64)
+        inside = (col >= 0) & (col < self._cols) & (row >= 0) & (row < self._rows)
+        out = np.zeros(xy.shape[0], dtype=bool)
+        ri, ci = row[inside], col[inside]
+        out[inside] = ~self._blocked[ri, ci] & (self._dist[ri, ci] > self.params.unexplained_m)
+        return out
+
+    def detect(
+        self,
+        ranges_m: np.ndarray,
+        angle_min_rad: float,
+        angle_increment_rad: float,
+        range_max_m: float,
+        sensor_pose: tuple[float, float, float],
+    ) -> list[Detection]:
+        """Opponents in one scan.
+
+        Args:
+            ranges_m: (K,) ranges [m], beams counter-clockwise from `angle_min_rad` [rad] by
+                `angle_increment_rad` [rad]; returns at or beyond `range_max_m` (and
+                non-finite or non-positive ones) are no returns.
+            sensor_pose: (x m, y m, yaw rad) of the sensor in the map frame.
+
+        Returns:
+            the detections, in beam order.
+        """
+        r = np.asarray(ranges_m, dtype=float).ravel()
+        x0, y0, yaw0 = (float(v) for v in sensor_pose)
+        valid = np.isfinite(r) & (r > 0.0) & (r < float(range_max_m))
+        idx = np.flatnonzero(valid)
+        if idx.size == 0:
+            return []
+        ang = yaw0 + angle_min_rad + angle_increment_rad * idx
+        xy = np.column_stack([x0 + r[idx] * np.cos(ang), y0 + r[idx] * np.sin(ang)])
+        keep = self.unexplained(xy)
+        idx, xy = idx[keep], xy[keep]
+        if idx.size == 0:
+            return []
+        p = self.params
+        step = np.hypot(*np.diff(xy, axis=0).T)
+        breaks = (np.diff(idx) > p.max_beam_gap) | (step > p.cluster_gap_m)
+        starts = np.concatenate([[0], np.flatnonzero(breaks) + 1, [idx.size]])
+        out: list[Detection] = []
+        for a, b in itertools.pairwise(starts.tolist()):
+            pts = xy[a:b]
+            hint = None
+            if self.track is not None and pts.shape[0] >= p.min_points:
+                s_here, _ = self.track.project(pts.mean(axis=0))
+                hint = float(self.track.heading_at(float(s_here)))
+            cut = (
+                self._cut(r, idx[a], idx[a] - 1, valid),
+                self._cut(r, idx[b - 1], idx[b - 1] + 1, valid),
+            )
+            box = fit_car_box(pts, (x0, y0), p, hint, cut)
+            if box is None:
+                continue
+            out.append(
+                Detection(
+                    x_m=box[0],
+                    y_m=box[1],
+                    yaw_rad=box[2],
+                    n_points=int(b - a),
+                    range_m=float(r[idx[a:b]].min()),
+                    points=pts,
+                )
+            )
+        return out
+
+    def _cut(self, r: np.ndarray, end: int, beside: int, valid: np.ndarray) -> bool:
+        """Whether a cluster's end beam `end` is not the car's end: the beam `beside` it
+        returns nearer, ``cluster_gap_m`` or more in front (an occluder) [beam indices]."""
+        if beside < 0 or beside >= r.size or not valid[beside]:
+            return False
+        return bool(r[beside] < r[end] - self.params.cluster_gap_m)
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    """Settings of the tracker (module docstring)."""
+
+    accel_std_mps2: float = 8.0
+    meas_std_m: float = 0.02
+    init_speed_std_mps: float = 3.0
+    gate_chi2: float = 13.8
+    lateral_speed_std_mps: float = 0.15
+    confirm_hits: int = 3
+    max_misses: int = 8
+
+
+@dataclass
+class OpponentTrack:
+    """One tracked opponent.
+
+    Attributes:
+        track_id: kept for the track's life (1, 2, ... in birth order).
+        x: (4,) state [x m, y m, vx m/s, vy m/s] (map frame).
+        P: (4, 4) its covariance.
+        t_s: time of the state [s].
+        hits: detections associated so far; misses: scans in a row without one.
+    """
+
+    track_id: int
+    x: np.ndarray
+    P: np.ndarray
+    t_s: float
+    hits: int = 1
+    misses: int = 0
+    confirmed: bool = False
+
+    @property
+    def position(self) -> tuple[float, float]:
+        """(x, y) [m]."""
+        return float(self.x[0]), float(self.x[1])
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """(vx, vy) [m/s]."""
+        return float(self.x[2]), float(self.x[3])
+
+
+class OpponentTracker:
+    """Constant-velocity Kalman tracks of detections (module docstring).
+
+    Args:
+        params: the tracker's settings.
+    """
+
+    def __init__(self, params: TrackerParams = TrackerParams()) -> None:
+        self.params = params
+        self.tracks: list[OpponentTrack] = []
+        #: detections refused so far (a non-finite value or fewer than two).
+        self.dropped = 0
+        self._next_id = 1
+        self._H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
+        self._R = np.eye(2) * params.meas_std_m**2
+
+    def _predict(self, tr: OpponentTrack, t_s: float) -> None:
+        dt = max(0.0, t_s - tr.t_s)
+        F = np.eye(4)
+        F[0, 2] = F[1, 3] = dt
+        q = self.params.accel_std_mps2**2
+        g = np.array([0.5 * dt * dt, dt])
+        Q1 = q * np.outer(g, g)  # (2, 2) per axis: [pos, vel]
+        Q = np.zeros((4, 4))
+        Q[np.ix_([0, 2], [0, 2])] = Q1
+        Q[np.ix_([1, 3], [1, 3])] = Q1
+        tr.x = F @ tr.x
+        tr.P = F @ tr.P @ F.T + Q
+        tr.t_s = t_s
+
+    def update(self, t_s: float, detections: list[tuple[float, ...]]) -> list[OpponentTrack]:
+        """Advance every track to `t_s` [s] and take this scan's detections.
+
+        Args:
+            t_s: the scan's time [s].
+            detections: (x m, y m) or (x m, y m, yaw rad) each; with a yaw (the box's long
+                axis, modulo pi) the velocity across it is also measured as 0 with
+                ``lateral_speed_std_mps`` (a car moves along its axis: the pseudo-measurement
+                that keeps the constant-velocity model from lagging through bends).
+                Detections with a non-finite value are dropped and counted (``dropped``).
+
+        Returns:
+            the confirmed tracks after the update.
+        """
+        p = self.params
+        for tr in self.tracks:
+            self._predict(tr, t_s)
+        rows = [tuple(float(v) for v in d) for d in detections]
+        rows = [r for r in rows if len(r) >= 2 and all(math.isfinite(v) for v in r)]
+        self.dropped += len(detections) - len(rows)
+        z = np.array([r[:2] for r in rows], dtype=float).reshape(-1, 2)
+        yaws = [r[2] if len(r) > 2 else None for r in rows]
+        n_t, n_d = len(self.tracks), z.shape[0]
+        cost = np.full((n_t, n_d), np.inf)
+        for i, tr in enumerate(self.tracks):
+            S = self._H @ tr.P @ self._H.T + self._R
+            Si = np.linalg.inv(S)
+            nu = z - tr.x[:2]
+            m2 = np.einsum("nj,jk,nk->n", nu, Si, nu)
+            cost[i] = np.where(m2 <= p.gate_chi2, m2, np.inf)
+        used_t, used_d = set(), set()
+        order = np.argsort(cost, axis=None)
+        for flat in order:
+            i, j = divmod(int(flat), max(n_d, 1))
+            if not np.isfinite(cost[i, j]):
+                break
+            if i in used_t or j in used_d:
+                continue
+            used_t.add(i)
+            used_d.add(j)
+            self._correct(self.tracks[i], z[j], yaws[j])
+        for i, tr in enumerate(self.tracks):
+            if i not in used_t:
+                tr.misses += 1
+        self.tracks = [tr for tr in self.tracks if tr.misses <= p.max_misses]
+        for j in range(n_d):
+            if j not in used_d:
+                P0 = np.diag([p.meas_std_m**2] * 2 + [p.init_speed_std_mps**2] * 2)
+                x0 = np.array([z[j, 0], z[j, 1], 0.0, 0.0])
+                self.tracks.append(OpponentTrack(self._next_id, x0, P0, float(t_s)))
+                self._next_id += 1
+        for tr in self.tracks:
+            tr.confirmed = tr.confirmed or tr.hits >= p.confirm_hits
+        return [tr for tr in self.tracks if tr.confirmed]
+
+    def _correct(self, tr: OpponentTrack, z: np.ndarray, yaw: float | None = None) -> None:
+        """Kalman correction by position `z` (2,) [m] and, with `yaw` [rad], the zero
+        velocity across the car's axis (Joseph form)."""
+        H, R = self._H, self._R
+        if yaw is not None:
+            lat = np.array([[0.0, 0.0, -math.sin(yaw), math.cos(yaw)]])
+            H = np.vstack([H, lat])
+            R = np.diag([R[0, 0], R[1, 1], self.params.lateral_speed_std_mps**2])
+            z = np.array([z[0], z[1], 0.0])
+        S = H @ tr.P @ H.T + R
+        K = tr.P @ H.T @ np.linalg.inv(S)
+        tr.x = tr.x + K @ (z - H @ tr.x)
+        ikh = np.eye(4) - K @ H
+        tr.P = ikh @ tr.P @ ikh.T + K @ R @ K.T
+        tr.hits += 1
+        tr.misses = 0
