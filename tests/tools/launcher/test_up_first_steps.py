@@ -90,7 +90,7 @@ def test_the_watch_live_line_names_a_runnable_rerun(tmp_path: Path, monkeypatch)
     log = tmp_path / "telemetry.log"
     log.write_text("telemetry: watch live with: rerun --connect rerun+http://127.0.0.1:9/proxy\n")
     assert up._connect_line(log, 1.0) == (
-        "watch live with: .venv/bin/rerun --connect rerun+http://127.0.0.1:9/proxy")
+        "watch live with: nice -n 10 .venv/bin/rerun --connect rerun+http://127.0.0.1:9/proxy")
 
 
 # ---------------------------------------------------------------- 2. a quiet console
