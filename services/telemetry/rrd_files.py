@@ -110,7 +110,9 @@ def readable_length(path: str | Path) -> tuple[int, bool]:
             kind, length = struct.unpack("<QQ", f.read(MESSAGE_HEADER_BYTES))
             end = off + MESSAGE_HEADER_BYTES + length
             if kind == 0:  # end of stream: the footer follows
-                return size, True
+                # whole unless the cut fell inside the footer: then every message is there,
+                # read without the footer (as a killed writer's file)
+                return (size, True) if end <= size else (off, False)
             if end > size:
                 return off, False
             off = end

@@ -203,3 +203,29 @@ def test_find_segments_forms(tmp_path: Path, tele_circle_csv: Path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(FileNotFoundError):
         find_segments(tmp_path / "empty")
+
+
+def test_a_segment_cut_inside_its_footer_keeps_every_message(
+    tmp_path: Path, tele_circle_csv: Path
+) -> None:
+    """A file cut after its end-of-stream marker (inside the footer: a closed file truncated)
+    is read without the footer, every message kept, and said to be cut."""
+    track = load_track(str(tele_circle_csv))
+    whole = tmp_path / "telemetry.0000.rrd"
+    _write_segment(whole, track, 10.0, 2.0)
+    data = whole.read_bytes()
+    off = 12
+    while True:  # the end-of-stream marker (kind 0)
+        kind, length = struct.unpack("<QQ", data[off:off + 16])
+        if kind == 0:
+            break
+        off += 16 + length
+    assert length > 32, "the footer is large enough to cut inside"
+    cut = tmp_path / "cut" / "telemetry.0000.rrd"
+    cut.parent.mkdir()
+    cut.write_bytes(data[: off + 16 + length // 2])
+    assert readable_length(cut) == (off, False)
+    store, complete = read_store(cut)
+    assert not complete
+    n_full = sum(1 for _ in read_store(whole)[0].stream())
+    assert sum(1 for _ in store.stream()) == n_full
