@@ -89,6 +89,7 @@ class DriveSummary:
     ay_saturation_mps2: float
     ay_seen_mps2: float
     ay_target_mps2: float
+    reason: str
     trace: list[tuple[float, str, float, float, float, int]]
 
 
@@ -135,7 +136,7 @@ def run_drive(track: Track, sim_settings: SimulatorSettings, dt_s: float = 0.05,
     env = state.envelope
     summary = DriveSummary(sim.t_s, time.perf_counter() - t0, off, max_e, env.saturated,
                            env.ay_saturation_mps2, env.ay_seen_mps2, env.ay_target_mps2,
-                           trace)
+                           env.reason, trace)
     return tap.signals(), summary
 
 

@@ -18,7 +18,9 @@ lateral-error feedback) and runs three phases one after the other:
    ``K`` from the low-a_y samples) and, when the measured steering departs from it by more
    than ``saturation_rad`` for ``saturation_hold_s`` (front or rear tyres saturating: the
    grip it has seen), stops the target rising and sets it to ``margin`` times the a_y
-   where it saw that. Tells the tyres.
+   where it saw that; so does a lateral error in a bend beyond ``line_share`` of the
+   room (the car cannot hold the line: ``margin`` times the largest a_y seen). Tells the
+   tyres.
 
 Safety, always: the speed of every bend is capped by the envelope (with a braking
 distance before it at ``brake_mps2``), and the car brakes to ``v_safe_mps`` when its
@@ -68,6 +70,8 @@ class DriveSettings:
         saturation_hold_s: for how long it must last [s].
         linear_ay_mps2: samples below this |a_y| fit the linear response [m/s^2].
         margin: the target after saturation: this times the a_y where it was seen.
+        line_share: a lateral error in a bend beyond this share of the room allowed
+            counts as saturation too (the car cannot hold the line).
     """
 
     speed_steps_s: float = 50.0
@@ -77,7 +81,7 @@ class DriveSettings:
                                            4.3, 2.0)
     speed_step_hold_s: float = 1.6
     steering_speed_mps: float = 2.0
-    steering_step_rad: float = 0.22
+    steering_step_rad: float = 0.18
     steering_step_hold_s: float = 0.5
     ay_first_mps2: float = 2.5
     ay_step_mps2: float = 0.25
@@ -88,12 +92,13 @@ class DriveSettings:
     v_safe_mps: float = 1.0
     edge_margin_m: float = 0.3
     preview_s: float = 0.2
-    heading_bandwidth_radps: float = 2.5
-    lateral_gain_per_s: float = 0.8
+    heading_bandwidth_radps: float = 3.0
+    lateral_gain_per_s: float = 1.5
     saturation_rad: float = 0.035
     saturation_hold_s: float = 0.3
     linear_ay_mps2: float = 3.0
     margin: float = 0.92
+    line_share: float = 1.0
 
     @property
     def duration_s(self) -> float:
@@ -134,6 +139,7 @@ class Envelope:
         ay_saturation_mps2: the |a_y| where it was seen (nan before).
         sxx, sxy, n: sums of the linear fit ``delta - L kappa = K a_y``.
         over_s: how long the departure has lasted [s].
+        reason: why it saturated ("" before): "steering response" or "lost the line".
     """
 
     ay_target_mps2: float
@@ -144,6 +150,7 @@ class Envelope:
     sxy: float = 0.0
     n: int = 0
     over_s: float = 0.0
+    reason: str = ""
 
     @property
     def understeer_rad_per_mps2(self) -> float:
@@ -176,9 +183,19 @@ def envelope_update(env: Envelope, wheelbase_m: float, v_mps: float, steering_ra
                                  abs(departure) > settings.saturation_rad) else 0.0
     env = replace(env, over_s=over, ay_seen_mps2=max(env.ay_seen_mps2, a))
     if over >= settings.saturation_hold_s and not env.saturated:
-        return replace(env, saturated=True, ay_saturation_mps2=a,
+        return replace(env, saturated=True, ay_saturation_mps2=a, reason="steering response",
                        ay_target_mps2=min(env.ay_target_mps2, settings.margin * a))
     return env
+
+
+def envelope_lost_line(env: Envelope, settings: DriveSettings) -> Envelope:
+    """The car cannot hold the line in a bend (its lateral error passed ``line_share`` of
+    the room): saturation, at the largest |a_y| it has measured (the grip it has seen)."""
+    if env.saturated:
+        return env
+    return replace(env, saturated=True, ay_saturation_mps2=env.ay_seen_mps2,
+                   reason="lost the line",
+                   ay_target_mps2=min(env.ay_target_mps2, settings.margin * env.ay_seen_mps2))
 
 
 def envelope_raise(env: Envelope, settings: DriveSettings) -> Envelope:
@@ -269,7 +286,7 @@ class DriveProgramme:
                              self.settings.brake_mps2)
         return replace(state, profile=prof, profile_ay_mps2=ay)
 
-    def tracker(self, obs: Observation) -> float:
+    def tracker(self, obs: Observation, understeer: float = 0.0) -> float:
         """The centreline tracker [rad]: the curvature `preview_s` ahead (the servo's lag)
         as feed-forward, plus feedback on the heading error towards a heading that closes
         the front axle's lateral error."""
@@ -279,7 +296,8 @@ class DriveProgramme:
         fx = obs.x_m + lf * math.cos(obs.yaw_rad)
         fy = obs.y_m + lf * math.sin(obs.yaw_rad)
         s_f, e_f = self.track.project_near(fx, fy, obs.s_m + lf)
-        ff = math.atan(self.wheelbase_m * self.kappa[self._index(s_f + st.preview_s * v)])
+        kappa = float(self.kappa[self._index(s_f + st.preview_s * v)])
+        ff = math.atan(self.wheelbase_m * kappa) + understeer * v * v * kappa
         e_psi = obs.yaw_rad - float(self.track.heading_at(s_f))
         e_psi = math.atan2(math.sin(e_psi), math.cos(e_psi))
         # the heading loop's crossover at `heading_bandwidth_radps` whatever the speed (the
@@ -304,12 +322,15 @@ class DriveProgramme:
         room = float(self.half_width_m[i]) - st.edge_margin_m  # lateral error allowed
         near_edge = abs(obs.e_m) > room
         fade = float(np.clip((room - abs(obs.e_m)) / max(0.7 * room, 1e-3), 0.0, 1.0))
-        steer = self.tracker(obs)
         env = state.envelope
+        steer = self.tracker(obs, env.understeer_rad_per_mps2)
         if state.phase == "cornering":
             env = envelope_update(env, self.wheelbase_m, obs.v_mps, obs.steering_rad,
                                   obs.yaw_rate_radps, obs.ay_mps2, dt, st)
             bend = abs(self.kappa[i]) > self.bend_kappa
+            if (bend and abs(obs.e_m) > st.line_share * room and t > 5.0
+                    and abs(obs.ay_mps2) >= st.linear_ay_mps2):
+                env = envelope_lost_line(env, st)
             if state.in_bend and not bend:  # a bend done: the next one a step faster
                 env = envelope_raise(env, st)
             state = replace(state, in_bend=bend)
@@ -322,6 +343,10 @@ class DriveProgramme:
         if state.phase == "speed_steps":
             k = int(t / st.speed_step_hold_s) % len(st.speed_levels_mps)
             speed = min(st.speed_levels_mps[k], cap)
+            turning = abs(self.kappa[i]) > self.bend_kappa or abs(obs.yaw_rate_radps) > 0.5
+            turning = turning or abs(obs.e_m) > 0.5 * room  # or off the line: no step up
+            if turning:  # steps up on the straights only (no power oversteer)
+                speed = min(speed, max(state.last_speed_mps, obs.v_mps) + st.accel_mps2 * dt)
         elif state.phase == "steering_steps":
             speed = min(st.steering_speed_mps, cap)
             k = int(t / st.steering_step_hold_s)
