@@ -17,6 +17,7 @@ version is not written yet (the drive runs in the simulator only).
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,11 +27,12 @@ import numpy as np
 
 from services.simulator import ImuSensor, LapTimer, OdometrySensor, Simulator, centreline_pose
 from services.telemetry import Recorder, open_segment
+from shared.config import ConfigError, config_from_dict, load_config
 from shared.config.simulator import SimulatorSettings
 from shared.config.telemetry import TelemetrySettings
 from shared.keys import DRIVE_CMD, IMU, ODOM
 from shared.messages import DriveCmd, Imu, Message, Odom
-from shared.track import Track
+from shared.track import Track, TrackError, load_track
 from shared.vehicle.sysid_drive import DriveProgramme, DriveSettings, Observation
 
 Signals = dict[str, tuple[np.ndarray, np.ndarray]]
@@ -174,3 +176,35 @@ def write_recording(path: Path, signals: Signals,
     rec.flush(timeout_sec=5.0)
     rec.disconnect()
     return path
+
+
+def drive_main(out: str, track_spec: str | None, car_config: str | None,
+               prog: str = "racestack sysid") -> int:
+    """``racestack sysid --drive``: record the drive of `car_config`'s car (a ``--config``
+    file; None: the defaults) on `track_spec` (None: its ``[track]`` source) into
+    ``out/telemetry.0000.rrd``; 0 written, 2 bad input."""
+    try:
+        cfg = load_config(car_config) if car_config else config_from_dict({})
+        track = load_track(track_spec or cfg.track.source)
+    except (ConfigError, TrackError, OSError) as exc:
+        print(f"{prog}: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    settings = DriveSettings()
+    print(f"{prog}: identification drive on {track.name} ({settings.duration_s:.0f} s "
+          "simulated: speed steps, steering steps, cornering at rising a_y)", flush=True)
+    signals, summ = run_drive(track, cfg.simulator, cfg.planner.dt_s, settings)
+    path = write_recording(Path(out) / "telemetry.0000.rrd", signals)
+    print(report_line(summ))
+    print(f"wrote {path}\nnext: racestack sysid {out} --out car.toml "
+          f"{'--config ' + car_config if car_config else ''}".rstrip())
+    return 0
+
+
+def report_line(summ: DriveSummary) -> str:
+    """One line on how a drive went."""
+    sat = (f"saturation seen at |a_y| {summ.ay_saturation_mps2:.2f} m/s^2 ({summ.reason}), "
+           f"held at {summ.ay_target_mps2:.2f}" if summ.saturated else
+           f"no saturation seen (target reached {summ.ay_target_mps2:.2f} m/s^2)")
+    return (f"{summ.sim_s:.0f} s simulated ({summ.wall_s:.0f} s wall), {summ.off_track} "
+            f"off-track events, largest lateral error {summ.max_abs_e_m:.2f} m, largest "
+            f"|a_y| {summ.ay_seen_mps2:.2f} m/s^2; {sat}")
