@@ -146,7 +146,9 @@ def write_outputs(result: SysidResult, base_data: dict[str, Any],
         "fit": result.fit_info,
     }
     js = out.with_suffix(".sysid.json")
-    js.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    # numpy scalars (a numpy bool in an estimate's flags) as plain Python values
+    js.write_text(json.dumps(doc, indent=2, default=lambda o: o.item()) + "\n",
+                  encoding="utf-8")
     return js
 
 
