@@ -94,7 +94,7 @@ class DriveSettings:
     preview_s: float = 0.2
     heading_bandwidth_radps: float = 3.0
     lateral_gain_per_s: float = 1.5
-    saturation_rad: float = 0.035
+    saturation_rad: float = 0.05
     saturation_hold_s: float = 0.3
     linear_ay_mps2: float = 3.0
     margin: float = 0.92

@@ -72,7 +72,7 @@ def test_envelope_stops_rising_at_saturation() -> None:
     st = DriveSettings()
     env, targets = drive_bends(st, saturating, grip=20.0)
     assert env.saturated and env.reason == "steering response"
-    # the departure passes 0.035 rad a little above 4.5 m/s^2
+    # the departure passes saturation_rad (0.05 rad) a little above 4.5 m/s^2
     assert 4.5 < env.ay_saturation_mps2 < 6.0
     assert env.ay_target_mps2 == pytest.approx(st.margin * env.ay_saturation_mps2)
     stop = int(np.argmax(np.diff(targets) <= 0)) + 1
