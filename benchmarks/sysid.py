@@ -17,7 +17,12 @@ estimate +- 1 sigma, the error and whether it is within 10 % (friction, the Pace
 delays: 10 ms), and which ones the run cannot tell ("not identifiable from this run").
 
     python -m benchmarks.sysid [--duration 120] [--track builtin:paperlike]
-        [--method cimpcc] [--cars identified,softer,grippier]
+        [--method cimpcc] [--cars identified,softer,grippier] [--drive]
+
+``--drive``: instead of racing, the identification drive (``racestack sysid --drive``'s
+programme, ``shared.vehicle.sysid_drive``: 50 s of speed steps, 35 s of steering steps,
+95 s of cornering at a rising lateral acceleration that stops at the saturation it sees)
+records the car; the line then gives its off-track events and where the envelope stopped.
 """
 
 from __future__ import annotations
@@ -31,9 +36,9 @@ from typing import Any
 import numpy as np
 
 from services.planner import PlannerPool, laps_of, make_min_time_lap, request_for
-from services.simulator import ImuSensor, OdometrySensor
 from services.simulator.dynamics import friction_accel_limit
 from services.tools.bench import LoopOptions, SimulatorPlant, race
+from services.tools.sysid_drive import SignalTap, report_line, run_drive
 from shared.config import RacestackConfig, config_from_dict
 from shared.config.methods import CIMPCC, planner_methods
 from shared.config.vehicle import DynamicVehicleParams, vehicle_preset
@@ -105,35 +110,22 @@ def record_drive(cfg: RacestackConfig, track_spec: str, method: str, duration_s:
     planner.reset()
     plant = SimulatorPlant(track, cfg.simulator, LoopOptions(laps=10_000))
     sim = plant.sim
-    seed = cfg.simulator.seed
-    imu = ImuSensor(cfg.simulator.imu, np.random.default_rng(seed + 101))
-    odo = OdometrySensor(cfg.simulator.odometry, np.random.default_rng(seed + 102))
-    rows: dict[str, list[tuple[float, float]]] = {k: [] for k in (
-        "cmd_speed_mps", "cmd_steering_rad", "speed_mps", "steering_rad", "yaw_rate_radps",
-        "ax_mps2", "ay_mps2")}
+    tap = SignalTap(cfg.simulator, cfg.simulator.seed)
     step = sim.step
     last: list[Any] = [None]
 
     def recording_step(command: Any = None, dt_s: float | None = None) -> Any:
         if command is not None and command is not last[0]:  # a new cmd/drive, stamped now
             last[0] = command
-            rows["cmd_speed_mps"].append((sim.t_s, float(command[0])))
-            rows["cmd_steering_rad"].append((sim.t_s, float(command[1])))
+            tap.command(sim.t_s, float(command[0]), float(command[1]))
         out = step(command, dt_s)
-        for m in imu.update(out):
-            rows["yaw_rate_radps"].append((m.stamp_s, m.yaw_rate_radps))
-            rows["ax_mps2"].append((m.stamp_s, m.accel_long_mps2))
-            rows["ay_mps2"].append((m.stamp_s, m.accel_lat_mps2))
-        for m in odo.update(out):
-            rows["speed_mps"].append((m.stamp_s, m.speed_mps))
-            rows["steering_rad"].append((m.stamp_s, m.steering_rad))
+        tap.feed(out)
         return out
 
     sim.step = recording_step  # type: ignore[method-assign]
     t0 = time.perf_counter()
     got = race(planner, plant, None, max_ticks=int(duration_s / cfg.planner.dt_s), reset=False)
-    signals = {k: (np.array([a for a, _ in v]), np.array([b for _, b in v]))
-               for k, v in rows.items()}
+    signals = tap.signals()
     ays = np.abs(signals["ay_mps2"][1])
     summary = {"laps": plant.laps_completed, "off_track": plant.off_all,
                "stop": got.stop_reason or plant.stop_reason, "sim_s": sim.t_s,
@@ -213,15 +205,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--track", default="builtin:paperlike")
     ap.add_argument("--method", default=CIMPCC, choices=planner_methods())
     ap.add_argument("--cars", default=",".join(CARS), help=f"of {', '.join(CARS)}")
+    ap.add_argument("--drive", action="store_true", help="record the identification drive "
+                    "(racestack sysid --drive's programme, ~3 minutes) instead of racing; "
+                    "--duration and --method are then not used")
     args = ap.parse_args(argv)
     for name in args.cars.split(","):
         true = car(name)
         cfg = config_of(true)
-        signals, summ = record_drive(cfg, args.track, args.method, args.duration)
-        print(f"\n{name}: {args.method} on {args.track}, {summ['sim_s']:.0f} s simulated "
-              f"({summ['wall_s']:.0f} s wall), {summ['laps']} laps, {summ['off_track']} "
-              f"off-track events{', stopped: ' + summ['stop'] if summ['stop'] else ''}; "
-              f"|a_y| p95 {summ['ay_p95']:.2f} m/s^2")
+        if args.drive:
+            signals, drv = run_drive(load_track(args.track), cfg.simulator, cfg.planner.dt_s)
+            print(f"\n{name}: the identification drive on {args.track}: {report_line(drv)}")
+        else:
+            signals, summ = record_drive(cfg, args.track, args.method, args.duration)
+            print(f"\n{name}: {args.method} on {args.track}, {summ['sim_s']:.0f} s simulated "
+                  f"({summ['wall_s']:.0f} s wall), {summ['laps']} laps, {summ['off_track']} "
+                  f"off-track events{', stopped: ' + summ['stop'] if summ['stop'] else ''}; "
+                  f"|a_y| p95 {summ['ay_p95']:.2f} m/s^2")
         t0 = time.perf_counter()
         result = identify(signals, base_for(true), "pacejka")
         rows, good, told = table(name, result, truths(true, cfg))

@@ -14,7 +14,8 @@
 
 from __future__ import annotations
 
-from services.telemetry.recorder import SIM_TIME, WALL_TIME
+from services.telemetry.recorder import SIM_TIME, WALL_TIME, Recorder
+from services.telemetry.recording import open_segment
 from services.telemetry.rrd_files import find_segments, read_store
 
-__all__ = ["SIM_TIME", "WALL_TIME", "find_segments", "read_store"]
+__all__ = ["SIM_TIME", "WALL_TIME", "Recorder", "find_segments", "open_segment", "read_store"]

@@ -8,6 +8,7 @@ racestack mintime ...            the minimum-time lap of the car (the limit, the
 racestack tune ...               search a method's parameters for the fastest clean laps
 racestack report RUN             the lap table and figures of a recorded run
 racestack sysid RUN --out F      the car identified from a recorded run (a [vehicle] overlay)
+racestack sysid --drive --out D  an identification drive recorded in the simulator (for sysid)
 racestack track --from-map M     a track (centreline CSV + PNG) from a SLAM map's yaml
 racestack laps                   the planner against its own kinematic model
 racestack certs --out DIR        the secure profile's local CA and per-service certificates

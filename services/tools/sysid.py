@@ -1,5 +1,9 @@
 """``racestack sysid RUN --out car.toml [--model linear|linear_saturated|pacejka]``: the
-car identified from a recorded run.
+car identified from a recorded run. ``racestack sysid --drive [--track T] [--car CONFIG]
+--out RUN_DIR``: records an identification drive in the simulator first
+(``services.tools.sysid_drive``: speed steps, steering steps, cornering at a rising lateral
+acceleration that stops short of the grip seen; about 3 minutes) into
+``RUN_DIR/telemetry.0000.rrd``, which ``racestack sysid RUN_DIR --out car.toml`` then reads.
 
 Reads the telemetry recording of a run (``racestack report``'s reader: a run folder, its
 ``telemetry.0000.rrd`` ... segments or one ``.rrd``; a killed run's open segment is read up
@@ -46,6 +50,7 @@ from shared.config.toml_write import dumps
 from shared.config.vehicle import DynamicVehicleParams
 from shared.extras import require
 from shared.service_shell import OneLineArgumentParser, plain_help
+from shared.track import TRACK_SPEC_HELP
 from shared.vehicle.identification import (
     TYRE_PARAMETERS,
     Estimate,
@@ -141,7 +146,9 @@ def write_outputs(result: SysidResult, base_data: dict[str, Any],
         "fit": result.fit_info,
     }
     js = out.with_suffix(".sysid.json")
-    js.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    # numpy scalars (a numpy bool in an estimate's flags) as plain Python values
+    js.write_text(json.dumps(doc, indent=2, default=lambda o: o.item()) + "\n",
+                  encoding="utf-8")
     return js
 
 
@@ -178,8 +185,17 @@ def write_figure(result: SysidResult, path: Path) -> None:
 def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """The ``racestack sysid`` arguments."""
     ap = ap or OneLineArgumentParser(prog=PROG, description=plain_help(__doc__))
-    ap.add_argument("recording", help="a telemetry run folder or .rrd (segments read in order)")
-    ap.add_argument("--out", required=True, help="the identified car: a TOML --config file")
+    ap.add_argument("recording", nargs="?",
+                    help="a telemetry run folder or .rrd (segments read in order)")
+    ap.add_argument("--out", required=True, help="the identified car: a TOML --config file "
+                    "(with --drive: the run folder the drive is recorded into)")
+    ap.add_argument("--drive", action="store_true",
+                    help="record an identification drive in the simulator into --out "
+                    "instead of fitting (default: fit RECORDING)")
+    ap.add_argument("--track", help=f"--drive's track: {TRACK_SPEC_HELP} (default: the "
+                    "config's [track] source)")
+    ap.add_argument("--car", help="--drive's simulated car and simulator: a --config file "
+                    "(default: --config, else the built-in defaults)")
     ap.add_argument("--model", choices=tuple(TYRE_PARAMETERS),
                     help="tyre model to fit (default: the base car's tyre_model)")
     ap.add_argument("--config", help="base configuration: geometry and mass of the car, "
@@ -194,6 +210,14 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
 def main(argv: Sequence[str] | None = None, args: argparse.Namespace | None = None) -> int:
     """``racestack sysid`` (module docstring); returns the exit code."""
     args = args or build_parser().parse_args(argv)
+    if args.drive:
+        from services.tools.sysid_drive import drive_main
+
+        return drive_main(args.out, args.track, args.car or args.config, PROG)
+    if not args.recording:
+        print(f"{PROG}: error: give a RECORDING to fit, or --drive to record one",
+              file=sys.stderr)
+        return 2
     if not args.no_figure:
         require("matplotlib")
     base_data: dict[str, Any] = {}

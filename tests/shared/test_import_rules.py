@@ -41,6 +41,7 @@ TOOL_ORDER: tuple[frozenset[str], ...] = (
     frozenset({"tune"}),
     frozenset({"bench"}),
     frozenset({"sysid"}),
+    frozenset({"sysid_drive"}),
     frozenset({"mintime", "report", "track", "certs", "config_reference"}),
 )
 #: Which modules may import zenoh (rule 5): the bus package's session modules.

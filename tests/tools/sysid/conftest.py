@@ -5,7 +5,6 @@ written as a telemetry recording."""
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -13,13 +12,9 @@ import numpy as np
 import pytest
 
 from services.simulator import ImuSensor, OdometrySensor, Simulator
-from services.telemetry.recorder import Recorder
-from services.telemetry.recording import open_segment
+from services.tools.sysid_drive import write_recording
 from shared.config.simulator import SimulatorSettings
-from shared.config.telemetry import TelemetrySettings
 from shared.config.vehicle import DynamicVehicleParams
-from shared.keys import DRIVE_CMD, IMU, ODOM
-from shared.messages import DriveCmd, Imu, Message, Odom
 
 #: Command period [s] (the planner's 20 Hz).
 CMD_DT_S = 0.05
@@ -66,42 +61,6 @@ def drive(vehicle: DynamicVehicleParams, duration_s: float = 60.0, seed: int = 0
             for k, v in out.items()}
 
 
-def write_run(path: Path, signals: dict[str, tuple[np.ndarray, np.ndarray]],
-              keys: tuple[str, ...] = (ODOM, IMU, DRIVE_CMD)) -> Path:
-    """Record `signals` (``drive``'s) as the telemetry service does: the messages of
-    `keys` through the ``Recorder`` into the segment `path` (closed, with its footer)."""
-    msgs: list[tuple[float, str, Message]] = []
-    if ODOM in keys:
-        t, v = signals["speed_mps"]
-        d = signals["steering_rad"][1]
-        msgs += [(ti, ODOM, Odom(stamp_s=ti, speed_mps=vi, steering_rad=di))
-                 for ti, vi, di in zip(t.tolist(), v.tolist(), d.tolist(), strict=True)]
-    if IMU in keys:
-        t, r = signals["yaw_rate_radps"]
-        ax, ay = signals["ax_mps2"][1], signals["ay_mps2"][1]
-        msgs += [(ti, IMU, Imu(stamp_s=ti, yaw_rate_radps=ri, ax_mps2=xi, ay_mps2=yi))
-                 for ti, ri, xi, yi in zip(t.tolist(), r.tolist(), ax.tolist(), ay.tolist(),
-                                           strict=True)]
-    if DRIVE_CMD in keys:
-        t, v = signals["cmd_speed_mps"]
-        d = signals["cmd_steering_rad"][1]
-        msgs += [(ti, DRIVE_CMD, DriveCmd(stamp_s=ti, speed_mps=vi, steering_rad=di))
-                 for ti, vi, di in zip(t.tolist(), v.tolist(), d.tolist(), strict=True)]
-    msgs.sort(key=lambda m: m[0])
-    settings = TelemetrySettings()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    rec = open_segment(settings, path, "sysid-test")
-    recorder = Recorder(rec, settings)
-    recorder.log_static(None)
-    now = time.time()
-    for t_s, suffix, msg in msgs:
-        recorder.handle(suffix, msg, now + t_s)
-    recorder.close()
-    rec.flush(timeout_sec=5.0)
-    rec.disconnect()
-    return path
-
-
 @pytest.fixture(scope="session")
 def sysid_drive() -> Callable[..., dict[str, tuple[np.ndarray, np.ndarray]]]:
     """``drive``: a synthetic run of the simulator's car."""
@@ -110,5 +69,6 @@ def sysid_drive() -> Callable[..., dict[str, tuple[np.ndarray, np.ndarray]]]:
 
 @pytest.fixture(scope="session")
 def sysid_write_run() -> Callable[..., Path]:
-    """``write_run``: a synthetic run as a telemetry segment."""
-    return write_run
+    """``write_recording``: a synthetic run as a telemetry segment (as the telemetry
+    service records it: the messages through the ``Recorder``)."""
+    return write_recording
