@@ -50,11 +50,15 @@ def raw_session(port: int, files: dict[str, str]) -> zenoh.Session:
     return zenoh.open(c)
 
 
-def started_pids(run_dir: Path) -> dict[str, int]:
-    """The services the launcher started, by PID, from RUN/logs/launcher.log (the console
-    shows only warnings)."""
+def started_pids(run_dir: Path, output: str) -> dict[str, int]:
+    """The processes the launcher started, by PID: the services from RUN/logs/launcher.log
+    (the console shows only warnings), the router from the console's secure-profile line."""
     text = (run_dir / "logs" / "launcher.log").read_text()
-    return {m[0]: int(m[1]) for m in re.findall(r"started (\w+) \(pid (\d+)\)", text)}
+    pids = {m[0]: int(m[1]) for m in re.findall(r"started (\w+) \(pid (\d+)\)", text)}
+    router = re.search(r"router \(pid (\d+)\)", output)
+    if router:
+        pids["router"] = int(router[1])
+    return pids
 
 
 def gone(pid: int) -> bool:
@@ -159,6 +163,6 @@ def test_secure_profile_refuses_strangers_denies_intruders_and_races_clean(
     laps = re.findall(r"lap \d: \d+\.\d+ s, .* off-track (\d+)", out)
     assert laps == ["0"], out
     assert "secure profile: certificates from" in out, out
-    pids = started_pids(tmp_path / "run")
+    pids = started_pids(tmp_path / "run", out)
     assert {"router", "simulator", "localization_bridge", "planner", "telemetry"} <= set(pids)
     assert all(gone(pid) for pid in pids.values()), out
