@@ -111,6 +111,12 @@ class BridgeService(Service):
         self.published = 0
         self.on_pose_output = settings.state_output == "on_pose"
         self._last_fused = -math.inf  #: monotonic time of the newest fused pose's state [s]
+        #: one publisher at a time, and the stamp of the newest state sent [s]: the pose path
+        #: and the fallback worker both publish, so a state computed before the other's but
+        #: sent after it is older than what the planner already has (dropped and counted)
+        self._put_lock = threading.Lock()
+        self._last_put_stamp_s = -math.inf
+        self.out_of_order = 0
         self._said: Counter[str] = Counter()
         self._quality = "none"
         self._place: Teleport | None = None  #: a teleport for the lidar's filter (scan worker)
@@ -226,11 +232,15 @@ class BridgeService(Service):
         return state_record(self.core.estimate(now), now)
 
     def _put(self, state: State, fused: bool = False) -> None:
-        """Publish one state (`fused`: of a pose just fused); a fault is counted and
-        reported, never raised."""
-        with self.bus.faults.guard(self.state_pub.key):
+        """Publish one state (`fused`: of a pose just fused), unless it is not newer than the
+        last one sent (``out_of_order``); a fault is counted and reported, never raised."""
+        with self._put_lock, self.bus.faults.guard(self.state_pub.key):
             if fused:
                 self._last_fused = self.clock()
+            if state.stamp_s <= self._last_put_stamp_s:
+                self.out_of_order += 1  # the other thread sent a newer state meanwhile
+                return
+            self._last_put_stamp_s = state.stamp_s
             self.state_pub.put(state)
             self.published += 1
 

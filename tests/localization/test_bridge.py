@@ -120,6 +120,25 @@ def test_each_fused_pose_publishes_its_state_at_once_and_a_gated_one_does_not() 
     assert (st.x_m, st.y_m, st.stamp_s) == (pytest.approx(5.0), pytest.approx(1.0), 1000.06)
 
 
+def test_a_state_older_than_the_one_already_sent_is_dropped_and_counted() -> None:
+    """The pose path and the fallback worker both publish: a state computed before the other
+    thread's but sent after it would take the planner back in time."""
+    bus = FakeBus()
+    wall = Clock(1000.0)
+    svc = BridgeService(bus, LocalizationSettings())
+    svc.wall_clock = wall
+    svc.on_pose(Pose(stamp_s=999.99, x_m=1.0, y_m=2.0, yaw_rad=0.0))
+    wall.t = 1000.030
+    newer = svc.current_state()  # the fallback's state, sent first
+    wall.t = 1000.025
+    older = svc.current_state()  # computed earlier on the pose path, sent second
+    svc._put(newer)
+    svc._put(older, fused=True)
+    stamps = [s.stamp_s for s in bus.sent(bus.keys.state, State)]
+    assert stamps == sorted(stamps) and stamps[-1] == 1000.030
+    assert svc.out_of_order == 1
+
+
 def test_the_fallback_state_goes_out_only_while_no_pose_is_fused() -> None:
     bus = FakeBus()
     svc = BridgeService(bus, LocalizationSettings(fallback_after_s=0.05, publish_rate_hz=100.0))
