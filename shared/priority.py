@@ -3,8 +3,9 @@
 ``apply_priority(settings)`` (the common shell calls it after loading the configuration,
 before the bus and the workers start, so every thread inherits it) sets what
 ``[processes.<name>]`` asks for and returns a ``PriorityReport``: one warning line per thing
-it could not set (no right, no such CPU, not Linux), or an info line for a nice asked for
-only where permitted (``nice_if_permitted``), never raising: a process that may not raise
+it could not set (no right, no such CPU, not Linux), or an info line for a nice or a
+real-time priority asked for only where permitted (``nice_if_permitted``,
+``realtime_if_permitted``), never raising: a process that may not raise
 its priority runs on at the one it has. ``SchedulingCalls`` holds the OS calls, so the rules are
 tested without changing the test process.
 """
@@ -84,10 +85,9 @@ def apply_priority(
         try:
             os_calls.set_realtime(settings.realtime_priority)
         except (AttributeError, OSError) as exc:  # no right (EPERM), not Linux
-            warnings.append(
-                f"real-time priority {settings.realtime_priority} not permitted "
-                f"({_reason(exc)}): normal scheduling at nice {settings.nice}"
-            )
+            line = (f"real-time priority {settings.realtime_priority} not permitted "
+                    f"({_reason(exc)}): normal scheduling at nice {settings.nice}")
+            (report.notes if settings.realtime_if_permitted else warnings).append(line)
     try:
         if os_calls.get_nice() != settings.nice or settings.nice != 0:
             os_calls.set_nice(settings.nice)  # every thread (one a library started too)

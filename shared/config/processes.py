@@ -7,11 +7,12 @@ them. Every thread the process starts afterwards inherits them (on Linux nicenes
 and the scheduling policy are per thread and inherited by new threads).
 
 The defaults work on a 2-core laptop without root: the critical path (simulator, bridge,
-planner, VESC driver, lidar driver) asks for nice -10 where permitted (``nice_if_permitted``:
-without the right it runs at normal priority, said in one info line, no warning), telemetry
+planner, VESC driver, lidar driver) asks for ``SCHED_RR`` priority 10 and nice -10, each
+where permitted (``realtime_if_permitted``, ``nice_if_permitted``: without the right it runs
+at normal priority, said in one info line, no warning), telemetry
 (and the Rerun viewer it spawns, which inherits its niceness) and the ROS 2 gateway niced
 (10), no CPU pinning (on two cores pinning a service leaves it waiting for its one core
-while the other idles), no real-time scheduling. A negative nice or a real-time priority
+while the other idles). A negative nice or a real-time priority
 needs the right (``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` / ``RLIMIT_RTPRIO`` of ``ulimit -e`` /
 ``-r``); without it a configured one is said in one warning line and the process runs on at
 the priority it had.
@@ -38,12 +39,15 @@ class ProcessPriority(Section):
         realtime_priority: above 0: the ``SCHED_RR`` real-time priority (1-99) the process
             asks for at start (needs the right; without it one warning line and the nice
             above is kept); 0: normal scheduling.
+        realtime_if_permitted: True: a `realtime_priority` the process may not set is no
+            warning (one info line; it runs on at `nice`): "real time where permitted".
     """
 
     nice: int = Field(0, ge=-20, le=19)
     nice_if_permitted: bool = False
     cpus: tuple[int, ...] = ()
     realtime_priority: int = Field(0, ge=0, le=99)
+    realtime_if_permitted: bool = False
 
     @field_validator("cpus")
     @classmethod
@@ -55,10 +59,19 @@ class ProcessPriority(Section):
         return cpus
 
 
+#: ``SCHED_RR`` priority of the critical path (low among 1-99: kernel threads and a
+#: system's own real-time tasks keep theirs).
+CRITICAL_RT = 10
 #: Telemetry and the gateway give way to the critical path.
 NICED = ProcessPriority(nice=10)
-#: The critical path: higher than normal where permitted, normal elsewhere.
-CRITICAL = ProcessPriority(nice=-10, nice_if_permitted=True)
+#: The critical path: real time (``SCHED_RR`` 10) where permitted, else nice -10 where
+#: permitted, else normal. Real time is what holds the deadline with the rest of the machine
+#: busy: under a CPU hog and a load average of 8-10 the pose-to-command p99 was 18-25 ms at
+#: nice -10 and 5.7-6.3 ms with ``SCHED_RR`` (``benchmarks/stack_latency.py``, issue 25).
+#: None of these processes spins (each waits on its input or its clock), and Linux keeps 5 %
+#: of each CPU for normal processes (``sched_rt_runtime_us``) should one ever do so.
+CRITICAL = ProcessPriority(nice=-10, nice_if_permitted=True, realtime_priority=CRITICAL_RT,
+                           realtime_if_permitted=True)
 
 
 class ProcessSettings(Section):

@@ -45,12 +45,17 @@ def test_the_defaults_raise_the_critical_path_where_permitted_and_nice_telemetry
     for name in ("simulator", "localization_bridge", "planner", "vesc_driver"):
         p = cfg.processes.of(name)
         assert p is not None and p.nice < 0 and p.nice_if_permitted
-        assert not p.cpus and p.realtime_priority == 0
-    assert cfg.processes.telemetry.nice > 0
-    # without the right the default is no warning, only a note, and the process runs on
-    fake = FakeOs(deny=("nice",))
+        assert p.realtime_priority > 0 and p.realtime_if_permitted and not p.cpus
+    assert cfg.processes.telemetry.nice > 0 and cfg.processes.telemetry.realtime_priority == 0
+    # where permitted the critical path runs real time
+    fake = FakeOs()
+    assert apply_priority(cfg.processes.planner, fake.calls()).warnings == []
+    assert fake.realtime == cfg.processes.planner.realtime_priority
+    # without the right the default is no warning, only a note each, and the process runs on
+    fake = FakeOs(deny=("nice", "realtime"))
     report = apply_priority(cfg.processes.planner, fake.calls())
-    assert report.warnings == [] and len(report.notes) == 1 and fake.nice == 0
+    assert report.warnings == [] and len(report.notes) == 2
+    assert (fake.nice, fake.realtime) == (0, 0)
     assert cfg.processes.of("bench") is None  # a tool has none of its own
 
 
