@@ -6,7 +6,7 @@ other put is denied, ``default_permission = "deny"``):
 | key (below ``racestack/<car>/``) | may put |
 |---|---|
 | ``vehicle/*`` (pose, imu, odom, scan) | simulator, vesc_driver, lidar_driver, ros2_gateway |
-| ``state`` | localization_bridge |
+| ``state``, ``opponents`` | localization_bridge |
 | ``cmd/drive``, ``planner/plan`` | planner |
 | ``lap``, ``sim/truth`` | simulator |
 | ``vesc/state`` | vesc_driver |
@@ -52,6 +52,7 @@ from shared.keys import (
     IMU,
     LAP,
     ODOM,
+    OPPONENTS,
     PLAN,
     POSE,
     SCAN,
@@ -86,6 +87,7 @@ PUT_RIGHTS: Mapping[str, tuple[str, ...]] = MappingProxyType(
         SIM_TRUTH: ("simulator",),
         SIM_CONTROL: ("launcher", "operator"),
         TELEPORT: ("simulator", "operator"),
+        OPPONENTS: ("localization_bridge",),
         EVENTS_LOG: IDENTITIES,
     }
 )
