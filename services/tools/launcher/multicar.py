@@ -137,6 +137,8 @@ def write_car_configs(data: dict[str, Any], cfg: RacestackConfig, run_dir: Path
     for car in cfg.cars:
         own = dict(data)
         own["bus"] = {**data.get("bus", {}), "car": car.name}
+        if cfg.bus.security == "mtls":  # its bridge, planner and telemetry: its own names
+            own["bus"]["per_car_identity"] = True
         own["planner"] = {**data.get("planner", {}),
                           "method": car.method or cfg.planner.method}
         path = run_dir / f"config.{car.name}.toml"
@@ -212,7 +214,9 @@ def race_cars(
         def all_alive() -> bool:
             return all(want <= _alive(bus, car) for car, want in wanted.items())
 
-        ok = sup.wait_until(lambda: all_alive() or stop_requested(), opts.start_timeout_s,
+        # every car's planner builds (or compiles) its solver at once, on the same cores
+        start_timeout_s = opts.start_timeout_s * len(races)
+        ok = sup.wait_until(lambda: all_alive() or stop_requested(), start_timeout_s,
                             poll_s=0.5)
         if stop_requested():
             print("interrupted", flush=True)
@@ -222,7 +226,7 @@ def race_cars(
                 print(f"{child.name} (pid {child.pid}) exited with code {child.exit_code()}; "
                       f"log: {child.log_path}", flush=True)
             missing = {car: sorted(w - _alive(bus, car)) for car, w in wanted.items()}
-            print(f"not all alive after {opts.start_timeout_s:.0f} s: {missing}", flush=True)
+            print(f"not all alive after {start_timeout_s:.0f} s: {missing}", flush=True)
             return 3
         print(f"all services alive: racing {len(races)} cars", flush=True)
         cpu = CpuMeter({n: c.pid for n, c in children.items()}, own="launcher (with the hub)")

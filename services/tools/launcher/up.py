@@ -203,15 +203,25 @@ def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) 
     first the certificates and the router (``services.tools.launcher.secure``)."""
     if cfg.bus.security != "mtls":
         return _run_up(cfg, opts, stop_requested)
-    if len(cfg.cars) >= 2:
-        return _cannot_start("several cars in the secure profile: not yet (each car's "
-                             "services need their own certificates and rules)")
+    identities: tuple[str, ...] = opts.services
+    if len(cfg.cars) >= 2:  # each car's services have their own certificate
+        from services.tools.launcher.multicar import write_car_configs
+        from shared.security.identities import car_identity
+
+        names = [c.name for c in cfg.cars]
+        identities = (*opts.services,
+                      *(car_identity(s, c) for c in names for s in opts.services))
+        if opts.run_dir is None:
+            opts.run_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+        # the router reads the race's configuration: the rules of every car
+        base, _ = write_car_configs(opts.config_data or {}, cfg, opts.run_dir)
+        opts.config_path = str(base)
     from services.tools.launcher.secure import run_secure
 
     if opts.run_dir is None:
         opts.run_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     run_dir = opts.run_dir
-    return run_secure(cfg, opts.config_path, run_dir, opts.services,
+    return run_secure(cfg, opts.config_path, run_dir, identities,
                       lambda: _run_up(cfg, opts, stop_requested))
 
 
