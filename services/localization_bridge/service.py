@@ -158,13 +158,14 @@ class BridgeService(Service):
         self.subscribe(IMU, self.on_imu)
         self.subscribe(TELEPORT, self.on_teleport)
         #: opponents from the scans ([localization.opponents]; needs the track's map)
+        #: built at the first scan (the map's raster is not on the start-up path)
         self.opponents: OpponentFeed | None = None
         self.opponent_counts: Counter[str] = Counter()
         self.opponent_costs_s: deque[float] = deque(maxlen=self.OPPONENT_COSTS_KEPT)
         self._forget_opponents = False
-        if settings.opponents.enabled and track is not None:
-            self.opponents = OpponentFeed(occupancy_for(track), track, settings.opponents,
-                                          settings.particle_filter)
+        self._opponent_track = track if settings.opponents.enabled else None
+        self.opponents_enabled = self._opponent_track is not None
+        if self.opponents_enabled:
             self.opponent_pub = self.publisher(OPPONENTS)
             #: with the lidar the scan worker does them after the state (one scan channel)
             self.opponent_scans = (
@@ -249,7 +250,7 @@ class BridgeService(Service):
             motion = self.lidar.motion()
         got = self.lidar.scan(scan, bias, motion)  # the filter's update, outside the lock
         if got is None:
-            if self.opponents is not None:
+            if self.opponents_enabled:
                 self.on_scan_opponents(scan)
             return
         e = got.estimate
@@ -262,8 +263,14 @@ class BridgeService(Service):
 
     def on_scan_opponents(self, scan: Scan) -> Opponents | None:
         """One scan through the opponent detector and tracker; its ``opponents`` record
-        (None: skipped, counted in ``opponent_counts``)."""
-        assert self.opponents is not None
+        (None: skipped, counted in ``opponent_counts``). The first call builds the
+        detector on the track's map."""
+        if self.opponents is None:
+            track = self._opponent_track
+            assert track is not None
+            grid = self.lidar.pf.grid if self.lidar is not None else occupancy_for(track)
+            self.opponents = OpponentFeed(grid, track, self.settings.opponents,
+                                          self.settings.particle_filter)
         now = self.wall_clock()
         with self._lock:
             forget, self._forget_opponents = self._forget_opponents, False
@@ -438,7 +445,7 @@ class BridgeService(Service):
         self.log.info("ready (%s pose); waiting for %s", self.settings.pose_source,
                       self.inputs.key)
         code = super().serve(stop)
-        if self.opponents is not None:
+        if self.opponents_enabled:
             st = self.opponent_stats()
             self.log.info(
                 "opponents: %d scans, %d detections, %d without a pose, cost per scan "

@@ -43,7 +43,7 @@ commands, ``sim/control``, pose, IMU, odometry, scan, truth, laps and teleports 
 ``racestack/<car>/...``; this service's loop steps them all together, one integration step
 each. After every step the footprints are checked pair by pair
 (``shared.vehicle.contact``): an episode of contact is counted once (``ContactMonitor``) and
-said on ``events/log`` as a warning (``fleet.incident_line``: who hit whom, when, how deep,
+said on ``events/log`` as a warning (``shared.vehicle.incidents``: who hit whom, when, how deep,
 how fast); overlapping cars are pushed apart and, when they approach, exchange momentum
 along the normal with restitution and lose speed (``collision.respond``;
 ``[simulator] contact_restitution``, ``contact_speed_loss``). Each car's lidar sees the
@@ -71,7 +71,7 @@ import numpy as np
 from services.simulator import LapEvent as TimerEvent
 from services.simulator import LapTimer, SensorSuite, Simulator, StepResult
 from services.simulator.collision import ContactParams, Motion, respond
-from services.simulator.fleet import CarView, IncidentRecord, incident_line
+from services.simulator.fleet import CarView
 from services.simulator.laps import centreline_pose
 from services.simulator.limits import state_fault
 from services.simulator.state import Pose2D, rear_axle
@@ -112,6 +112,7 @@ from shared.service import Service, publishes, subscribes
 from shared.track import Track, load_track, occupancy_for
 from shared.track.occupancy import OccupancyGrid
 from shared.vehicle.contact import ContactMonitor
+from shared.vehicle.incidents import IncidentRecord, incident_line
 
 #: With -v, the simulator's state is logged every this long of simulated time [s].
 DEBUG_PERIOD_S = 2.0

@@ -123,8 +123,8 @@ def test_no_pose_no_record_and_a_teleport_forgets_the_tracks(track, scanner) -> 
 
 
 def test_disabled_or_without_a_map_there_is_no_feed(track) -> None:
-    assert _bridge(track, enabled=False)[0].opponents is None
-    assert BridgeService(FakeBus(), LocalizationSettings()).opponents is None
+    assert not _bridge(track, enabled=False)[0].opponents_enabled
+    assert not BridgeService(FakeBus(), LocalizationSettings()).opponents_enabled
 
 
 def test_pose_at_moves_along_the_unicycle() -> None:

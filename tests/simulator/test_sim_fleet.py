@@ -11,13 +11,14 @@ import math
 import numpy as np
 import pytest
 
-from services.simulator.fleet import CarView, IncidentRecord, incident_line, parse_incident
+from services.simulator.fleet import CarView
 from services.simulator.service import START_OFFSET_M, SimulatorService
 from shared.bus.fake import FakeBus
 from shared.config import config_from_dict
 from shared.messages import DriveCmd, LogEvent, Scan, SimTruth
 from shared.track import load_track, occupancy_for
 from shared.vehicle.contact import box_contact
+from shared.vehicle.incidents import IncidentRecord, incident_line, parse_incident
 
 H = 0.01
 

@@ -42,6 +42,7 @@ from shared.messages import (
     SimActionName,
     SimControl,
 )
+from shared.vehicle.incidents import parse_incident
 
 #: Speed scale of the cars ``--cars N`` adds after the configured ones.
 DEFAULT_SPEED_SCALE = 0.85
@@ -176,7 +177,6 @@ def race_cars(
     """Start the processes of every car, race, print the table and incidents, stop all
     (exit codes as ``up``'s: 0 all laps, 1 not all, 3 a process died or never came, 130
     interrupted)."""
-    from services.simulator.fleet import parse_incident
     from services.tools.launcher.up import Launcher, OffTrackTally
 
     first = cfg.cars[0].name
