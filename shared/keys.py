@@ -41,6 +41,7 @@ VESC_STATE = "vesc/state"
 SIM_TRUTH = "sim/truth"
 SIM_CONTROL = "sim/control"
 TELEPORT = "vehicle/teleport"
+OPPONENTS = "opponents"
 EVENTS_LOG = "events/log"
 #: Liveliness tokens: racestack/<car>/alive/<service>.
 ALIVE = "alive"
@@ -60,6 +61,7 @@ TOPIC_TYPES: MappingProxyType[str, str] = MappingProxyType(
         SIM_TRUTH: "sim_truth",
         SIM_CONTROL: "sim_control",
         TELEPORT: "teleport",
+        OPPONENTS: "opponents",
         EVENTS_LOG: "log_event",
     }
 )
@@ -154,6 +156,11 @@ class Keys:
     def teleport(self) -> str:
         """The car put elsewhere: a simulator reset or an operator (``Teleport``)."""
         return self.key(TELEPORT)
+
+    @property
+    def opponents(self) -> str:
+        """Opponents tracked from the lidar by the localization bridge (``Opponents``)."""
+        return self.key(OPPONENTS)
 
     @property
     def events_log(self) -> str:

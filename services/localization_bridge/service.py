@@ -35,6 +35,16 @@ with the lidar, the particle filter too, on the scan worker before its next scan
 next ``state`` is at the new pose instead of the gate holding the old one; readings stamped
 at or before the teleport are dropped (counted, not reported as rejections).
 
+Opponents (``[localization.opponents]``, on by default in a race of several cars): every ``vehicle/scan`` that
+arrives also goes, on a worker of its own (a one-slot channel: a scan that waits is replaced
+by the newer one, never queued; with ``pose_source = "lidar"`` on the scan worker, after
+the state of that scan went out), through the opponent detector and tracker
+(``opponent_feed.OpponentFeed``) with the fused state moved back to the scan's stamp; each
+scan gives one ``opponents`` record (the confirmed tracks; an empty list when none). No
+scan, no record. Scans while the state is not valid, or further than ``max_pose_age_s``
+from it, are counted and skipped; a teleport forgets the tracks. Its cost per scan (CPU
+time, median and p99) is in the stopping line and ``opponent_stats()``.
+
 With ``filter = "passthrough"`` the newest pose is predicted to now by a unicycle
 (``fusion.StateAssembler``), on the same schedule. A State of its own that fails
 validation is not sent: it is counted in ``bus.faults`` and reported on ``events/log``."""
@@ -44,16 +54,29 @@ from __future__ import annotations
 import argparse
 import math
 import threading
-from collections import Counter
+from collections import Counter, deque
+
+import numpy as np
 
 from services.localization_bridge.estimator import Estimate, FusedEstimator, Verdict
 from services.localization_bridge.fusion import StateAssembler
 from services.localization_bridge.lidar_pose import LidarPoseSource, start_pose
+from services.localization_bridge.opponent_feed import OpponentFeed, pose_at
 from shared.bus import Bus
 from shared.config import RacestackConfig
 from shared.config.localization import LocalizationSettings
-from shared.keys import EVENTS_LOG, IMU, ODOM, POSE, SCAN, STATE, TELEPORT
-from shared.messages import Imu, LogEvent, LogLevelName, Odom, Pose, Scan, State, Teleport
+from shared.keys import EVENTS_LOG, IMU, ODOM, OPPONENTS, POSE, SCAN, STATE, TELEPORT
+from shared.messages import (
+    Imu,
+    LogEvent,
+    LogLevelName,
+    Odom,
+    Opponents,
+    Pose,
+    Scan,
+    State,
+    Teleport,
+)
 from shared.messages.records import MAX_POS_M, MAX_SPEED_MPS, MAX_STEER_RAD, MAX_YAW_RATE_RADPS
 from shared.service import Service, publishes, subscribes
 from shared.track import Track, load_track, occupancy_for
@@ -94,8 +117,11 @@ class BridgeService(Service):
         subscribes(IMU, Imu),
         subscribes(TELEPORT, Teleport),
         publishes(STATE, State),
+        publishes(OPPONENTS, Opponents),
         publishes(EVENTS_LOG, LogEvent),
     )
+    #: Costs of the newest this many scans are kept for the opponents' statistics.
+    OPPONENT_COSTS_KEPT = 2000
 
     def __init__(
         self, bus: Bus, settings: LocalizationSettings, track: Track | None = None
@@ -131,12 +157,31 @@ class BridgeService(Service):
         self.subscribe(ODOM, self.on_odom)
         self.subscribe(IMU, self.on_imu)
         self.subscribe(TELEPORT, self.on_teleport)
+        #: opponents from the scans ([localization.opponents]; needs the track's map)
+        #: built at the first scan (the map's raster is not on the start-up path)
+        self.opponents: OpponentFeed | None = None
+        self.opponent_counts: Counter[str] = Counter()
+        self.opponent_costs_s: deque[float] = deque(maxlen=self.OPPONENT_COSTS_KEPT)
+        self._forget_opponents = False
+        self._opponent_track = track if settings.opponents.enabled else None
+        self.opponents_enabled = self._opponent_track is not None
+        if self.opponents_enabled:
+            self.opponent_pub = self.publisher(OPPONENTS)
+            #: with the lidar the scan worker does them after the state (one scan channel)
+            self.opponent_scans = (
+                self.subscribe_channel(SCAN, capacity=1) if self.lidar is None else None
+            )
 
     @classmethod
     def create(cls, cfg: RacestackConfig, args: argparse.Namespace, bus: Bus) -> BridgeService:
         """The bridge with the ``[localization]`` settings (and the track for the lidar)."""
         loc = cfg.localization
-        track = load_track(cfg.track.source) if loc.pose_source == "lidar" else None
+        if loc.opponents.enabled is None:  # auto: only in a race of several cars
+            several = len(cfg.cars) > 1
+            loc = loc.model_copy(
+                update={"opponents": loc.opponents.model_copy(update={"enabled": several})})
+        needs_map = loc.pose_source == "lidar" or bool(loc.opponents.enabled)
+        track = load_track(cfg.track.source) if needs_map else None
         return cls(bus, loc, track)
 
     # -- inputs --------------------------------------------------------------------------
@@ -190,6 +235,7 @@ class BridgeService(Service):
                                     yaw_rad=msg.yaw_rad)
             if self.lidar is not None:
                 self._place = msg
+            self._forget_opponents = True
             state = self._now_state(now) if self.on_pose_output else None
         if state is not None:  # the car is there now: say so at once
             self._put(state, fused=True)
@@ -208,6 +254,8 @@ class BridgeService(Service):
             motion = self.lidar.motion()
         got = self.lidar.scan(scan, bias, motion)  # the filter's update, outside the lock
         if got is None:
+            if self.opponents_enabled:
+                self.on_scan_opponents(scan)
             return
         e = got.estimate
         now = self.wall_clock()
@@ -216,6 +264,61 @@ class BridgeService(Service):
             state = self._fused_state(verdict, now) if self.on_pose_output else None
         if state is not None:
             self._put(state, fused=True)
+
+    def on_scan_opponents(self, scan: Scan) -> Opponents | None:
+        """One scan through the opponent detector and tracker; its ``opponents`` record
+        (None: skipped, counted in ``opponent_counts``). The first call builds the
+        detector on the track's map."""
+        if self.opponents is None:
+            track = self._opponent_track
+            assert track is not None
+            grid = self.lidar.pf.grid if self.lidar is not None else occupancy_for(track)
+            self.opponents = OpponentFeed(grid, track, self.settings.opponents,
+                                          self.settings.particle_filter)
+        now = self.wall_clock()
+        with self._lock:
+            forget, self._forget_opponents = self._forget_opponents, False
+            ready = self.core.initialised or self.newest_pose is not None
+            state = self._now_state(now) if ready else None
+        if forget:
+            self.opponents.reset()
+        if state is None or not state.valid:
+            self.opponent_counts["scans_without_pose"] += 1
+            return None
+        dt = scan.stamp_s - state.stamp_s
+        if abs(dt) > self.settings.opponents.max_pose_age_s:
+            self.opponent_counts["scans_far_from_pose"] += 1
+            return None
+        pose = pose_at(state.x_m, state.y_m, state.yaw_rad, state.speed_mps,
+                       state.yaw_rate_radps, dt)
+        res = self.opponents.process(scan.stamp_s, scan.ranges_m, scan.angle_min_rad,
+                                     scan.angle_increment_rad, pose)
+        self.opponent_costs_s.append(res.cost_s)
+        self.opponent_counts["scans"] += 1
+        self.opponent_counts["detections"] += res.detections
+        msg = self.opponent_pub.try_put(stamp_s=max(self.wall_clock(), scan.stamp_s),
+                                        source_stamp_s=scan.stamp_s, tracks=res.tracks)
+        return msg
+
+    def opponents_loop(self) -> None:
+        """The opponents worker: every scan as it arrives, until the bus closes."""
+        assert self.opponent_scans is not None
+        first = True
+        while (scan := self.opponent_scans.recv()) is not None:
+            self.on_scan_opponents(scan)
+            if first:
+                self.log.info("first scan for the opponents on %s", self.opponent_scans.key)
+                first = False
+
+    def opponent_stats(self) -> dict[str, float]:
+        """Scans processed, detections, skipped scans and the cost per scan [ms] (CPU
+        time of detector and tracker: median, p99 over the newest ``OPPONENT_COSTS_KEPT``)."""
+        out: dict[str, float] = dict(self.opponent_counts)
+        costs = np.asarray(self.opponent_costs_s, dtype=float) * 1e3
+        if costs.size:
+            out["cost_median_ms"] = float(np.median(costs))
+            out["cost_p99_ms"] = float(np.percentile(costs, 99))
+        return out
 
     def _fused_state(self, verdict: Verdict, now: float) -> State | None:
         """The state of a pose the filter just fused at `now` (None: it was not fused).
@@ -340,9 +443,20 @@ class BridgeService(Service):
         key = self.state_pub.key
         self.start_worker("bridge-inputs", self.receive, stop, fault_key=key)
         self.start_worker("bridge-state", lambda: self.publish_loop(stop), stop, fault_key=key)
+        if self.opponent_scans is not None:
+            self.start_worker("bridge-opponents", self.opponents_loop, stop,
+                              fault_key=self.opponent_pub.key)
         self.log.info("ready (%s pose); waiting for %s", self.settings.pose_source,
                       self.inputs.key)
-        return super().serve(stop)
+        code = super().serve(stop)
+        if self.opponents_enabled:
+            st = self.opponent_stats()
+            self.log.info(
+                "opponents: %d scans, %d detections, %d without a pose, cost per scan "
+                "median %.2f ms, p99 %.2f ms", st.get("scans", 0), st.get("detections", 0),
+                st.get("scans_without_pose", 0) + st.get("scans_far_from_pose", 0),
+                st.get("cost_median_ms", math.nan), st.get("cost_p99_ms", math.nan))
+        return code
 
 
 main = BridgeService.main

@@ -52,7 +52,9 @@ class HubBusSettings(BusSettings):
 
 def hub_settings(cfg: RacestackConfig) -> BusSettings:
     """The router's ``[bus]``: in the secure profile with the rules of ``shared.security.acl``
-    for ``[bus] car`` and the ``[ros2]`` topics (``cfg.bus`` itself in the plain profile).
+    for ``[bus] car`` (every car of ``[[cars]]`` when there are several, each car's services
+    with their own identity) and the ``[ros2]`` topics (``cfg.bus`` itself in the plain
+    profile).
 
     Raises:
         ConfigError: a ``[[ros2.topics]]`` key the rules cannot hold (bad or inside
@@ -61,9 +63,12 @@ def hub_settings(cfg: RacestackConfig) -> BusSettings:
     if cfg.bus.security != "mtls":
         return cfg.bus
     from shared.security.acl import access_control
+    from shared.security.identities import IDENTITIES, fleet_identities
 
+    fleet = tuple(c.name for c in cfg.cars) if len(cfg.cars) >= 2 else ()
     try:
-        rules = access_control(cfg.bus.car, ros2=cfg.ros2)
+        rules = access_control(cfg.bus.car, fleet_identities(fleet) if fleet else IDENTITIES,
+                               ros2=cfg.ros2, fleet=fleet)
     except ValueError as exc:
         raise ConfigError(f"secure profile: {exc}") from None
     hub = HubBusSettings.model_validate(cfg.bus.model_dump())

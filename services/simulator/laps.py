@@ -169,6 +169,13 @@ class LapTimer:
         self._lap_off_count = 0
         self._lap_max_e = 0.0
 
+    def count_from_behind_line(self) -> None:
+        """After the first update of a car placed BEHIND the start line (in the lap's second
+        half): its progress counts from one lap before, so it drives an out lap over the line
+        and a full lap before timing starts, as a car placed past the line does."""
+        if self.progress_m > 0.5 * self.length_track_m and self._next_line == 1:
+            self.progress_m -= self.length_track_m
+
     @property
     def timing(self) -> bool:
         """Whether the first line crossing happened (laps are being timed)."""

@@ -23,6 +23,7 @@ from services.simulator.lidar import LidarScanner
 from services.simulator.state import rear_axle
 from services.simulator.vehicle import StepResult
 from shared.angles import wrap_angle_shifted
+from shared.car import CAR
 from shared.config.simulator import (
     ImuSettings,
     LidarSettings,
@@ -224,6 +225,10 @@ class LidarSensor:
             unknown_is_occupied=settings.unknown_is_occupied,
         )
         self._schedule = _Schedule(settings.rate_hz)
+        #: other cars the beams also hit: (M, 3) CoG poses [x m, y m, yaw rad] (None: none)
+        self.boxes: np.ndarray | None = None
+        #: their footprint [m]
+        self.box_size_m: tuple[float, float] = (CAR.length_m, CAR.width_m)
 
     def reset(self) -> None:
         """Restart the schedule at the next update."""
@@ -237,7 +242,11 @@ class LidarSensor:
         st = self.settings
         x = s.x_m + st.mount_x_m * math.cos(s.yaw_rad)
         y = s.y_m + st.mount_x_m * math.sin(s.yaw_rad)
-        ranges = self.scanner.scan(x, y, s.yaw_rad)
+        if self.boxes is None:
+            ranges = self.scanner.scan(x, y, s.yaw_rad)
+        else:
+            ranges = self.scanner.scan(x, y, s.yaw_rad, boxes=self.boxes,
+                                       length_m=self.box_size_m[0], width_m=self.box_size_m[1])
         if st.noise_std_m > 0.0:
             hit = ranges < st.range_max_m
             noisy = ranges + self.rng.normal(0.0, st.noise_std_m, ranges.shape).astype(np.float32)

@@ -36,6 +36,22 @@ the command timeout brakes the car to rest like a VESC whose commands stopped, u
 centreline at its projection, at rest, heading along the track (a marshal). Each is counted
 (``off_track_actions``) and said on ``events/log``.
 
+Several cars (``[[cars]]`` with two or more entries, issue #24): this ONE process integrates
+them all. The car of ``[bus] car`` is this service; each other car is a ``SimulatorService``
+of its own on a view of the same bus with that car's keys (``fleet.CarView``): its own
+commands, ``sim/control``, pose, IMU, odometry, scan, truth, laps and teleports on
+``racestack/<car>/...``; this service's loop steps them all together, one integration step
+each. After every step the footprints are checked pair by pair
+(``shared.vehicle.contact``): an episode of contact is counted once (``ContactMonitor``) and
+said on ``events/log`` as a warning (``shared.vehicle.incidents``: who hit whom, when, how deep,
+how fast); overlapping cars are pushed apart and, when they approach, exchange momentum
+along the normal with restitution and lose speed (``collision.respond``;
+``[simulator] contact_restitution``, ``contact_speed_loss``). Each car's lidar sees the
+others' footprints (``cast_on_boxes``). A car's ``speed_scale`` multiplies its speed
+commands; its start is ``start_gap_m`` behind the car before it (``shared.config.cars``).
+A pause or resume of the first car holds or releases the whole simulation (they share one
+clock); the other cars' resets are their own.
+
 The shell is a ``shared.service.Service`` (ports in ``SimulatorService.PORTS``); its main
 thread is the real-time loop (``serve``), which also polls the drop and fault reports.
 """
@@ -43,6 +59,7 @@ thread is the real-time loop (``serve``), which also polls the drop and fault re
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import threading
@@ -53,6 +70,8 @@ import numpy as np
 
 from services.simulator import LapEvent as TimerEvent
 from services.simulator import LapTimer, SensorSuite, Simulator, StepResult
+from services.simulator.collision import ContactParams, Motion, respond
+from services.simulator.fleet import CarView
 from services.simulator.laps import centreline_pose
 from services.simulator.limits import state_fault
 from services.simulator.state import Pose2D, rear_axle
@@ -60,6 +79,7 @@ from services.simulator.vesc_actuation import VescActuation
 from shared.angles import wrap_angle
 from shared.bus import Bus, LatestSlot
 from shared.config import RacestackConfig
+from shared.config.cars import start_positions
 from shared.evaluation.results import OUT_LAP_START_M
 from shared.keys import (
     DRIVE_CMD,
@@ -90,6 +110,9 @@ from shared.messages import (
 )
 from shared.service import Service, publishes, subscribes
 from shared.track import Track, load_track, occupancy_for
+from shared.track.occupancy import OccupancyGrid
+from shared.vehicle.contact import ContactMonitor
+from shared.vehicle.incidents import IncidentRecord, incident_line
 
 #: With -v, the simulator's state is logged every this long of simulated time [s].
 DEBUG_PERIOD_S = 2.0
@@ -141,14 +164,25 @@ class SimulatorService(Service):
         *,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
+        start_s_m: float = START_OFFSET_M,
+        speed_scale: float = 1.0,
+        grid: OccupancyGrid | None = None,
     ) -> None:
         super().__init__(bus, clock=clock, wall_clock=wall_clock)
         self.cfg = cfg
         self.track = track
+        self.start_s_m = float(start_s_m)  #: where a reset puts the car (arc length [m])
+        self.speed_scale = float(speed_scale)  #: its speed commands are scaled by this
+        #: the other cars this service's loop steps ([[cars]]; empty: one car)
+        self.others: list[SimulatorService] = []
+        self.contacts: ContactMonitor | None = None
+        self.impacts = 0  #: contacts with an impact (approaching along the normal)
         s = cfg.simulator
         self.sim = Simulator(s)
-        grid = occupancy_for(track) if s.lidar.rate_hz > 0 else None
-        self.sensors = SensorSuite(s, grid)
+        if grid is None and s.lidar.rate_hz > 0:
+            grid = occupancy_for(track)
+        self.grid = grid if s.lidar.rate_hz > 0 else None  #: the lidar's map (shared by cars)
+        self.sensors = SensorSuite(s, self.grid)
         veh = s.vehicle
         self.timer = LapTimer(track, width_m=veh.width_m, length_m=veh.length_m)
         self.pub_pose = self.publisher(POSE)
@@ -194,7 +228,47 @@ class SimulatorService(Service):
             log.info("racing [simulator.vehicle] (preset %s), not the planners' [vehicle] "
                      "(preset %s): a model mismatch", cfg.simulator.vehicle.preset,
                      cfg.vehicle.preset)
-        return cls(cfg, bus, track)
+        if len(cfg.cars) < 2:
+            return cls(cfg, bus, track)
+        return cls.fleet(cfg, bus, track)
+
+    @classmethod
+    def fleet(cls, cfg: RacestackConfig, bus: Bus, track: Track, **kw: object
+              ) -> SimulatorService:
+        """The simulator of every car of ``[[cars]]``: the service of ``[bus] car`` (it
+        must be in the list) with the others added (module docstring).
+
+        Raises:
+            ValueError: ``[bus] car`` is not in ``[[cars]]``, or ``actuation = "fake_vesc"``
+                (one fake VESC, one car).
+        """
+        names = [c.name for c in cfg.cars]
+        if cfg.bus.car not in names:
+            raise ValueError(f"[bus] car {cfg.bus.car!r} is not in [[cars]] ({names})")
+        if cfg.simulator.actuation != "bus":
+            raise ValueError('several cars need [simulator] actuation = "bus"')
+        starts = start_positions(cfg.cars, START_OFFSET_M)
+        own = names.index(cfg.bus.car)
+        me = cfg.cars[own]
+        svc = cls(cfg, bus, track, start_s_m=starts[own], speed_scale=me.speed_scale,
+                  **kw)  # type: ignore[arg-type]
+        kw["grid"] = svc.grid  # one map for every car's lidar
+        for car, s0 in zip(cfg.cars, starts, strict=True):
+            if car.name != cfg.bus.car:
+                view: Bus = CarView(bus, car.name)  # type: ignore[assignment]
+                other = cls(cfg, view, track, start_s_m=s0, speed_scale=car.speed_scale,
+                            **kw)  # type: ignore[arg-type]
+                other.reporter = None  # the counters are shared: this service reports them
+                svc.add_car(other)
+        return svc
+
+    def add_car(self, other: SimulatorService) -> None:
+        """Step `other` (a car on its own keys) in this service's loop, with contacts."""
+        self.others.append(other)
+        veh = self.cfg.simulator.vehicle
+        self.contacts = ContactMonitor(1 + len(self.others), veh.length_m, veh.width_m)
+        self.log.info("%d cars: %s", 1 + len(self.others),
+                      ", ".join(c.keys.car for c in (self, *self.others)))
 
     def stamp(self, t_sim: float) -> float:
         """Wall-clock stamp [s] of simulation time `t_sim`."""
@@ -216,11 +290,13 @@ class SimulatorService(Service):
     def reset(self) -> None:
         """Put the car at rest just behind the start line (and release an off-track stop)."""
         t = self.sim.t_s
-        self.teleport(centreline_pose(self.track, START_OFFSET_M))
+        self.teleport(centreline_pose(self.track, self.start_s_m))
         self.timer.reset()
         self.stopped = False
         st = self.sim.state
         self.timer.update(t, st.x_m, st.y_m, st.yaw_rad, st.v_mps)
+        if self.start_s_m < 0.0:  # behind the line: an out lap over it first, as the leader
+            self.timer.count_from_behind_line()
         self.log.info("car reset to the start line")
 
     def fault_reset(self, reason: str, detail: str) -> None:
@@ -286,7 +362,8 @@ class SimulatorService(Service):
                 self._said_first_cmd = True
                 self.log.info("first drive command at t = %.2f s: %.2f m/s, %.3f rad",
                               self.sim.t_s, cmd.speed_mps, cmd.steering_rad)
-            self.sim.set_command(cmd.speed_mps, cmd.steering_rad, self.sim.t_s)
+            speed = cmd.speed_mps if self.speed_scale == 1.0 else cmd.speed_mps * self.speed_scale
+            self.sim.set_command(speed, cmd.steering_rad, self.sim.t_s)
         for ctl in self.controls.drain():
             if ctl.action == SimActionName.RESET:
                 self.reset()
@@ -372,6 +449,59 @@ class SimulatorService(Service):
                 lap=self.timer.laps_completed,
             )
 
+    def collide(self) -> None:
+        """Contacts between the cars after a step (module docstring): count and say new
+        episodes, push overlapping cars apart with the impact's response, and give every
+        car's lidar the others' footprints."""
+        cars = (self, *self.others)
+        states = [c.sim.state for c in cars]
+        poses = np.array([[s.x_m, s.y_m, s.yaw_rad] for s in states])
+        vel = np.array([[s.v_mps * math.cos(s.yaw_rad + s.slip_rad),
+                         s.v_mps * math.sin(s.yaw_rad + s.slip_rad)] for s in states])
+        assert self.contacts is not None
+        for inc in self.contacts.update(self.sim.t_s, poses, vel):
+            a, b = cars[inc.car_a].keys.car, cars[inc.car_b].keys.car
+            closing = float((vel[inc.car_a] - vel[inc.car_b]) @ np.asarray(inc.normal))
+            if inc.striker < 0:
+                striker, struck = "none", f"{a}+{b}"
+            else:
+                striker = cars[inc.striker].keys.car
+                struck = b if striker == a else a
+            rec = IncidentRecord(len(self.contacts.incidents), striker, struck, inc.t_s,
+                                 inc.depth_m, closing)
+            self.say(LogLevelName.WARNING, incident_line(rec))
+        veh = self.cfg.simulator.vehicle
+        params = ContactParams(self.cfg.simulator.contact_restitution,
+                               self.cfg.simulator.contact_speed_loss, veh.length_m,
+                               veh.width_m)
+        motions = [Motion(s.x_m, s.y_m, s.yaw_rad, s.v_mps, s.slip_rad) for s in states]
+        for i in range(len(cars)):
+            for j in range(i + 1, len(cars)):
+                got = respond(motions[i], motions[j], params)
+                if got is None:
+                    continue
+                motions[i], motions[j], impact = got
+                self.impacts += int(impact)
+                for k in (i, j):
+                    m = motions[k]
+                    cars[k].sim.nudge(m.x_m, m.y_m, m.speed_mps, m.slip_rad)
+        boxes = np.array([[m.x_m, m.y_m, m.yaw_rad] for m in motions])
+        for k, c in enumerate(cars):
+            if c.sensors.lidar is not None:
+                c.sensors.lidar.boxes = np.delete(boxes, k, axis=0)
+                c.sensors.lidar.box_size_m = (veh.length_m, veh.width_m)
+
+    def step_fleet(self, h: float) -> list[StepResult | None]:
+        """Step every car by `h` [s], then their contacts: each car's result (None: it was
+        reset), the states after the contacts' response."""
+        results = [c.advance(h) for c in (self, *self.others)]
+        if self.others:
+            self.collide()
+            cars = (self, *self.others)
+            results = [None if r is None else dataclasses.replace(r, state=c.sim.state)
+                       for c, r in zip(cars, results, strict=True)]
+        return results
+
     def close(self) -> None:
         """Stop the fake VESC (actuation = "fake_vesc")."""
         if self.vesc is not None:
@@ -396,6 +526,9 @@ class SimulatorService(Service):
             self.fault_resets,
             self.off_track_actions,
         )
+        if self.contacts is not None:
+            self.log.info("%d cars: %d contacts (%d impacts)", 1 + len(self.others),
+                          len(self.contacts.incidents), self.impacts)
         return 0
 
     def run(self, stop: threading.Event) -> None:
@@ -404,15 +537,18 @@ class SimulatorService(Service):
         self.t0_wall = self.wall_clock() - self.sim.t_s
         t0_mono = self.clock() - self.sim.t_s
         next_debug_s = self.sim.t_s
+        fleet = (self, *self.others)
         while not stop.is_set():
-            self.report()
-            self.handle_inputs()
+            for car in fleet:
+                car.report()
+                car.handle_inputs()
             if self.paused:
                 stop.wait(h)
                 t0_mono += h
                 self.t0_wall += h
                 continue
-            res = self.advance(h)  # None: the car was reset (its state left the contract)
+            # None: the car was reset (its state left the contract)
+            res, *rest = self.step_fleet(h) if self.others else (self.advance(h),)
             if self.sim.t_s >= next_debug_s:  # with -v: a line every DEBUG_PERIOD_S
                 next_debug_s = self.sim.t_s + DEBUG_PERIOD_S
                 st = self.sim.state
@@ -439,6 +575,10 @@ class SimulatorService(Service):
                         )
             if res is not None:
                 self.publish(res)
+            for car, r in zip(self.others, rest, strict=True):
+                car.t0_wall = self.t0_wall  # one clock for all
+                if r is not None:
+                    car.publish(r)
 
 
 main = SimulatorService.main

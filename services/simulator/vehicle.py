@@ -171,6 +171,19 @@ class Simulator:
         self.commands.push(v, delta, self._t - max(c.speed_delay_s, c.steering_delay_s))
         return self.state
 
+    def nudge(self, x_m: float, y_m: float, speed_mps: float, slip_rad: float) -> None:
+        """Move the car's CoG to (x, y) [m] with speed [m/s] and slip [rad] (a contact's
+        response, ``collision.py``); heading, yaw rate, steering and the commands stay.
+        Speed is clamped to the car's range, the slip to the canonical [-pi/2, pi/2]."""
+        vals = (x_m, y_m, speed_mps, slip_rad)
+        if not all(math.isfinite(v) for v in vals):
+            raise ValueError(f"nudge values must be finite, got {vals}")
+        p = self.params
+        _x, _y, delta, _v, psi, r, _beta = self._s
+        v = min(max(float(speed_mps), p.v_min_mps), p.v_max_mps)
+        beta = min(max(float(slip_rad), -_HALF_PI), _HALF_PI)
+        self._s = (float(x_m), float(y_m), delta, v, psi, r, beta)
+
     def snapshot(self) -> StepResult:
         """The current truth as a ``StepResult`` (accelerations 0, no sub-steps), e.g. to feed
         the sensors right after ``reset``."""

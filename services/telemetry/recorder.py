@@ -40,6 +40,8 @@ Entity layout (units in the names or below):
   ``drop_summary_interval_s``), ``events/telemetry`` (stale input, solver
   fallback, off track, rejected or dropped messages), ``events/sim_control``,
   ``events/teleport``.
+* ``world/opponents``: the footprints of the tracked opponents (``opponents``), labelled
+  with their track ids; ``opponents/count`` [tracks].
 * ``plan/info``: ``AnyValues`` (method, status) whenever they change.
 
 Latency ``latency/<key>`` is the message age at arrival, ``recv - stamp_s`` [ms], for
@@ -78,6 +80,7 @@ from shared.messages import (
     LogLevelName,
     Message,
     Odom,
+    Opponents,
     Plan,
     PlanStatusName,
     Pose,
@@ -296,6 +299,7 @@ class Recorder:
             keys.EVENTS_LOG: self._log_event,
             keys.SIM_CONTROL: self._sim_control,
             keys.TELEPORT: self._teleport,
+            keys.OPPONENTS: self._opponents,
         }
         self._static: tuple[Track | None, CurvatureProfile | None,
                             Mapping[str, str | float | int] | None] | None = None
@@ -807,6 +811,20 @@ class Recorder:
                 "world/truth",
                 rr.LineStrips2D.from_fields(strips=[footprint(
                     m.x_m, m.y_m, m.yaw_rad, c.car_length_m, c.car_width_m)]),
+            )
+
+    def _opponents(self, m: Opponents, tl: str, t: float, _recv: float) -> None:
+        """The tracked opponents: their number, and their footprints in the 2-D view."""
+        self.scalars.add("opponents/count", tl, t, len(m.tracks))
+        if self._visual_due("world/opponents", t, self.cfg.visual_max_hz):
+            self._set_time(tl, t)
+            self.rec.log(
+                "world/opponents",
+                rr.LineStrips2D(
+                    [footprint(o.x_m, o.y_m, o.yaw_rad, o.length_m, o.width_m)
+                     for o in m.tracks],
+                    labels=[f"#{o.id}" for o in m.tracks],
+                ),
             )
 
     def _log_event(self, m: LogEvent, tl: str, t: float, _recv: float) -> None:

@@ -70,12 +70,12 @@ def _cmd_up(args: argparse.Namespace) -> int:
     from services.tools.launcher import UpOptions, run_up, up_config
     from shared.service_shell import install_stop_handlers
 
-    cfg, data = up_config(args.config, track=args.track, method=args.method)
+    cfg, data = up_config(args.config, track=args.track, method=args.method, cars=args.cars)
     stop = threading.Event()
     install_stop_handlers(stop)
     run_dir = Path(args.run_dir) if args.run_dir else None
     opts = UpOptions(config_path=args.config, laps=args.laps, run_dir=run_dir,
-                     config_data=data, verbose=args.verbose)
+                     config_data=data, verbose=args.verbose, cars=args.cars)
     if args.serve is not None:
         opts.telemetry_args += ["--serve", str(args.serve)]
     return run_up(cfg, opts, stop_requested=stop.is_set)
@@ -204,6 +204,12 @@ def build_parser() -> argparse.ArgumentParser:
             "--method", choices=planner_methods(),
             help="the planner's method, one of the registry's (default: the configuration's "
             "[planner] method)",
+        )
+        up.add_argument(
+            "--cars", type=positive_int, metavar="N",
+            help="race N cars: one simulator, a bridge, planner and telemetry per car; the "
+            "configuration's [[cars]] first, then cars of the same method at speed scale "
+            "0.85, 1.5 m apart (default: the configuration's [[cars]], else one car)",
         )
         up.add_argument("--run-dir", help="where logs and telemetry go (default runs/<time>)")
         up.add_argument(

@@ -282,6 +282,10 @@ class BusSettings(Section):
             module docstring).
         certs_dir: the certificates folder of "mtls" (``racestack certs --out DIR``),
             relative to the working directory of the process.
+        per_car_identity: "mtls" in a race of several cars (``[[cars]]``): this process's
+            identity is its service's for ``car`` (``planner-car1``,
+            ``shared.security.identities.car_identity``) for the bridge, the planner and
+            telemetry (``racestack up --cars`` sets it in each car's configuration).
     """
 
     car: str = DEFAULT_CAR
@@ -294,6 +298,7 @@ class BusSettings(Section):
     services: dict[str, ServiceBusOverride] = Field(default_factory=dict)
     security: Security = "none"
     certs_dir: str = Field("certs", min_length=1)
+    per_car_identity: bool = False
 
     @field_validator("car")
     @classmethod
@@ -406,7 +411,10 @@ class BusSettings(Section):
         else:
             listen = []
             connect = [as_tls(connectable(e)) for e in (connect or hub_listen)]
-        files = identity_files(Path(certs_dir or self.certs_dir), service)
+        from shared.security.identities import car_identity
+
+        identity = car_identity(service, self.car) if self.per_car_identity else service
+        files = identity_files(Path(certs_dir or self.certs_dir), identity)
         return SessionPlan(
             mode="router" if hub else "client",
             listen=tuple(listen),

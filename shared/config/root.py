@@ -33,6 +33,7 @@ from pydantic_core import PydanticCustomError
 
 from shared.config.base import ConfigError, Section
 from shared.config.bus import BusSettings
+from shared.config.cars import CarEntry, check_cars
 from shared.config.lidar import LidarDriverSettings
 from shared.config.localization import LocalizationSettings
 from shared.config.planner import CurvatureSettings, PlannerSettings
@@ -95,6 +96,21 @@ class RacestackConfig(Section):
     telemetry: TelemetrySettings = TelemetrySettings()
     ros2: Ros2Settings = Ros2Settings()
     processes: ProcessSettings = ProcessSettings()
+    cars: tuple[CarEntry, ...] = Field(
+        (),
+        description="Several cars on one track ([[cars]]: name, method, speed_scale, "
+        "start_gap_m, start_s_m; shared/config/cars.py): one simulator integrates them all, "
+        "racestack up starts a bridge and a planner per car; empty: the one car of [bus] car",
+    )
+
+    @model_validator(mode="after")
+    def _cars_distinct(self) -> RacestackConfig:
+        check_cars(self.cars)
+        return self
+
+    def car(self, name: str) -> CarEntry | None:
+        """The ``[[cars]]`` entry named `name` (None: not in the list)."""
+        return next((c for c in self.cars if c.name == name), None)
 
     @model_validator(mode="before")
     @classmethod

@@ -154,6 +154,16 @@ class SimulatorSettings(Section):
         "rest. Each is counted and said on events/log (the bench's closed loop does not "
         "read it)",
     )
+    contact_restitution: float = Field(
+        0.3, ge=0.0, le=1.0, allow_inf_nan=False,
+        description="several cars ([[cars]]): restitution of a car-to-car impact along the "
+        "contact normal (0: plastic; services/simulator/collision.py)",
+    )
+    contact_speed_loss: float = Field(
+        0.2, ge=0.0, lt=1.0, allow_inf_nan=False,
+        description="several cars: fraction of each car's speed lost at an impact (a "
+        "contact is never a free pass)",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> SimulatorSettings:

@@ -12,6 +12,7 @@ import math
 from enum import IntEnum
 from typing import Annotated, Literal, get_args
 
+import msgspec
 import numpy as np
 from msgspec import Meta
 
@@ -22,6 +23,8 @@ from shared.messages.codec import (
     Array,
     Message,
     MessageError,
+    _field_error,
+    _plain,
     coerce_arrays,
 )
 
@@ -47,6 +50,14 @@ MAX_HORIZON = 1000
 MAX_BEAMS = 100_000
 #: Longest name of a log source [characters].
 MAX_SOURCE_LEN = 64
+#: Most tracks in one ``Opponents`` record.
+MAX_OPPONENTS = 64
+#: Largest opponent footprint side ``length_m`` / ``width_m`` [m].
+MAX_CAR_SIZE_M = 10.0
+#: Smallest opponent footprint side [m].
+MIN_CAR_SIZE_M = 0.01
+#: Largest variance of an opponent track (position [m^2], speed [m^2/s^2]).
+MAX_TRACK_VAR = 1e6
 
 
 # Field types: a float (an int is accepted and stored as a float) or an int in a range, bounds
@@ -450,6 +461,80 @@ class Teleport(Message):
     speed_mps: Speed = 0.0
 
 
+Variance = Annotated[float, Meta(ge=0.0, le=MAX_TRACK_VAR)]
+CarSize = Annotated[float, Meta(ge=MIN_CAR_SIZE_M, le=MAX_CAR_SIZE_M)]
+OpponentFrame = Literal["map"]
+
+
+class _CheckedStructMeta(msgspec.StructMeta):
+    """A nested record's validating constructor: keyword arguments converted by msgspec (the
+    same rules as on decoding), ``MessageError`` if one is broken."""
+
+    def __call__(cls, *args: object, **kwargs: object) -> object:  # noqa: N805
+        if args:
+            raise TypeError(f"{cls.__name__}() takes keyword arguments only")
+        plain = {k: _plain(v) for k, v in kwargs.items()}
+        try:
+            return msgspec.convert(plain, cls)
+        except msgspec.ValidationError as exc:
+            raise _field_error(cls, exc, plain.get) from None  # type: ignore[arg-type]
+
+
+class OpponentTrack(msgspec.Struct, metaclass=_CheckedStructMeta, frozen=True, kw_only=True,
+                    forbid_unknown_fields=False):
+    """One tracked opponent of an ``Opponents`` record (map frame; not a message itself).
+
+    Attributes:
+        id: the track's id, kept for its life (1, 2, ... in birth order per tracker).
+        x_m, y_m: centre of the opponent's footprint [m].
+        vx_mps, vy_mps: its velocity [m/s].
+        yaw_rad: heading of the footprint's long axis [rad] (from the box fit; the
+            velocity's direction tells front from back).
+        length_m, width_m: footprint [m] (0.01 .. 10).
+        cov_xx_m2, cov_xy_m2, cov_yy_m2: position covariance [m^2] (variances >= 0,
+            |xy| <= sqrt(xx yy) up to rounding).
+        speed_var_m2ps2: variance of the speed along the velocity [m^2/s^2] (>= 0).
+        age_s: time since the track was born [s]; hits: detections associated so far.
+    """
+
+    id: Count
+    x_m: Pos
+    y_m: Pos
+    vx_mps: Speed
+    vy_mps: Speed
+    yaw_rad: Angle
+    length_m: CarSize
+    width_m: CarSize
+    cov_xx_m2: Variance
+    cov_xy_m2: Annotated[float, Meta(ge=-MAX_TRACK_VAR, le=MAX_TRACK_VAR)]
+    cov_yy_m2: Variance
+    speed_var_m2ps2: Variance
+    age_s: Annotated[float, Meta(ge=0.0, le=MAX_STAMP_S)]
+    hits: Count
+
+
+class Opponents(Message):
+    """The opponents one lidar scan shows (the localization bridge's detector and tracker).
+
+    Attributes:
+        source_stamp_s: ``stamp_s`` of the scan the tracks were updated with [s].
+        frame: "map" (every position, velocity and heading is in the map frame).
+        tracks: the confirmed tracks (<= 64, ``MAX_OPPONENTS``), ``OpponentTrack`` each;
+            empty when no opponent is seen. Ids are unique within one record.
+    """
+
+    TYPE = "opponents"
+
+    source_stamp_s: Stamp
+    frame: OpponentFrame = "map"
+    tracks: Annotated[list[OpponentTrack], Meta(max_length=MAX_OPPONENTS)] = []  # noqa: RUF012
+
+    def __post_init__(self) -> None:
+        ids = [t.id for t in self.tracks]
+        if len(set(ids)) != len(ids):
+            raise _bad(self, f"track ids repeat: {sorted(ids)}")
+
+
 #: Every message class, in contract order.
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     Pose,
@@ -465,4 +550,5 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     LogEvent,
     SimControl,
     Teleport,
+    Opponents,
 )

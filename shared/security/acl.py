@@ -6,7 +6,7 @@ other put is denied, ``default_permission = "deny"``):
 | key (below ``racestack/<car>/``) | may put |
 |---|---|
 | ``vehicle/*`` (pose, imu, odom, scan) | simulator, vesc_driver, lidar_driver, ros2_gateway |
-| ``state`` | localization_bridge |
+| ``state``, ``opponents`` | localization_bridge |
 | ``cmd/drive``, ``planner/plan`` | planner |
 | ``lap``, ``sim/truth`` | simulator |
 | ``vesc/state`` | vesc_driver |
@@ -52,6 +52,7 @@ from shared.keys import (
     IMU,
     LAP,
     ODOM,
+    OPPONENTS,
     PLAN,
     POSE,
     SCAN,
@@ -63,7 +64,12 @@ from shared.keys import (
     VESC_STATE,
     Keys,
 )
-from shared.security.identities import IDENTITIES, ROS2_IDENTITY
+from shared.security.identities import (
+    IDENTITIES,
+    PER_CAR_SERVICES,
+    ROS2_IDENTITY,
+    car_identity,
+)
 
 if TYPE_CHECKING:
     from shared.config.ros2 import Ros2Settings
@@ -86,6 +92,7 @@ PUT_RIGHTS: Mapping[str, tuple[str, ...]] = MappingProxyType(
         SIM_TRUTH: ("simulator",),
         SIM_CONTROL: ("launcher", "operator"),
         TELEPORT: ("simulator", "operator"),
+        OPPONENTS: ("localization_bridge",),
         EVENTS_LOG: IDENTITIES,
     }
 )
@@ -196,10 +203,38 @@ def may_put(identity: str, suffix: str) -> bool:
     return identity in PUT_RIGHTS.get(suffix, ())
 
 
+def fleet_put_rights(identity: str, car: str, fleet: tuple[str, ...]) -> tuple[str, ...]:
+    """The key suffixes `identity` may put below ``racestack/<car>/`` in a race of `fleet`:
+    a per-car identity (``car_identity``: ``planner-car1``) its service's keys of its own
+    car only; the plain name of a per-car service (``planner``) nothing there (every car's
+    services have their car's identity); every other identity (simulator, launcher, ...)
+    its keys of every car."""
+    for service in PER_CAR_SERVICES:
+        if identity == service:
+            return ()
+        for c in fleet:
+            if identity == car_identity(service, c):
+                return tuple(s for s in TOPIC_TYPES if may_put(service, s)) if c == car else ()
+    return tuple(s for s in TOPIC_TYPES if may_put(identity, s))
+
+
+def _alive_name(identity: str, car: str, fleet: tuple[str, ...]) -> str | None:
+    """The service name whose token `identity` may declare below `car` (None: none)."""
+    if not fleet:
+        return identity
+    for service in PER_CAR_SERVICES:
+        if identity == service:
+            return None
+        if any(identity == car_identity(service, c) for c in fleet):
+            return service if identity == car_identity(service, car) else None
+    return identity
+
+
 def access_control(
     car: str,
     identities: tuple[str, ...] = IDENTITIES,
     ros2: Ros2Settings | None = None,
+    fleet: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """The ``access_control`` section of the hub's Zenoh config for `car` (JSON-able).
 
@@ -208,6 +243,11 @@ def access_control(
         identities: the certificate common names known to the rules (each one subject).
         ros2: the ``[ros2]`` section whose topics' keys get rules (None: no ROS keys, every
             put on them denied).
+        fleet: the cars of a race of several cars (``[[cars]]``, `car` among them; empty:
+            `car` alone). Then every car's keys get the rules, everyone may listen on all
+            of them, and each car's bridge, planner and telemetry have their own identity
+            (``shared.security.identities.car_identity``) that may put only their car's
+            keys (``fleet_put_rights``): car1's planner drives only car1.
 
     Raises:
         ValueError: a key without put rights, or a bad ROS key (``ros2_keys``).
@@ -215,22 +255,25 @@ def access_control(
     missing = set(TOPIC_TYPES) - set(PUT_RIGHTS)
     if missing:  # a new key must get its writers here
         raise ValueError(f"keys without put rights: {sorted(missing)}")
+    if fleet and car not in fleet:
+        raise ValueError(f"car {car!r} is not in the fleet {list(fleet)}")
+    cars = tuple(fleet) or (car,)
     keys = Keys(car)
-    everything = f"{keys.prefix}/**"
+    everything = [f"{Keys(c).prefix}/**" for c in cars]
     rules: list[dict[str, Any]] = [
         {
             "id": "listen",
             "messages": list(LISTEN_MESSAGES),
             "flows": ["ingress"],
             "permission": "allow",
-            "key_exprs": [everything],
+            "key_exprs": everything,
         },
         {
             "id": "forward",
             "messages": list(FORWARD_MESSAGES),
             "flows": ["egress"],
             "permission": "allow",
-            "key_exprs": [everything],
+            "key_exprs": everything,
         },
     ]
     for suffix in TOPIC_TYPES:
@@ -243,6 +286,19 @@ def access_control(
                 "key_exprs": [keys.key(suffix)],
             }
         )
+    for other in cars:  # the other cars' keys, each a rule of its own
+        if other == car:
+            continue
+        for suffix in TOPIC_TYPES:
+            rules.append(
+                {
+                    "id": f"{_rule_id(suffix)}_{other}",
+                    "messages": ["put"],
+                    "flows": ["ingress"],
+                    "permission": "allow",
+                    "key_exprs": [Keys(other).key(suffix)],
+                }
+            )
     shared_ros2: list[str] = []  # rule ids every identity gets
     ros2_put: dict[str, list[str]] = {}  # identity -> rule ids of its ROS puts
     if ros2 is not None:
@@ -313,16 +369,23 @@ def access_control(
                 ros2_put.setdefault(name, []).append("ros2_graph_token")
     policies: list[dict[str, Any]] = []
     for name in identities:
+        tokens = [Keys(c).alive(a) for c in cars
+                  if (a := _alive_name(name, c, tuple(fleet))) is not None]
         rules.append(
             {
                 "id": f"alive_{name}",
                 "messages": ["liveliness_token"],
                 "flows": ["ingress"],
                 "permission": "allow",
-                "key_exprs": [keys.alive(name)],
+                "key_exprs": tokens or [keys.alive(name)],
+                **({} if tokens else {"permission": "deny"}),
             }
         )
-        own = [_rule_id(s) for s in TOPIC_TYPES if may_put(name, s)]
+        if fleet:
+            own = [_rule_id(s) if c == car else f"{_rule_id(s)}_{c}"
+                   for c in cars for s in fleet_put_rights(name, c, tuple(fleet))]
+        else:
+            own = [_rule_id(s) for s in TOPIC_TYPES if may_put(name, s)]
         policies.append(
             {
                 "id": f"policy_{name}",

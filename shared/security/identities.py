@@ -33,6 +33,25 @@ OTHER_IDENTITIES: tuple[str, ...] = ("launcher", "operator", ROS2_IDENTITY)
 #: then ``OTHER_IDENTITIES``.
 IDENTITIES: tuple[str, ...] = (*(p.identity for p in ROSTER), *OTHER_IDENTITIES)
 
+#: The services each car of a race of several cars (``[[cars]]``) runs for itself: each has
+#: one identity per car, ``car_identity`` (the simulator, the launcher and the rest are one
+#: identity for every car).
+PER_CAR_SERVICES: tuple[str, ...] = ("localization_bridge", "planner", "telemetry")
+
+
+def car_identity(service: str, car: str) -> str:
+    """The identity (certificate common name) of `service` of car `car` in a race of several
+    cars: ``planner-car1`` (a service of ``PER_CAR_SERVICES``; any other: `service`)."""
+    return f"{service}-{car}" if service in PER_CAR_SERVICES else service
+
+
+def fleet_identities(cars: tuple[str, ...] | list[str]) -> tuple[str, ...]:
+    """Every identity of a race of `cars`: ``IDENTITIES`` and each car's own of
+    ``PER_CAR_SERVICES`` (``car_identity``)."""
+    own = tuple(car_identity(s, c) for c in cars for s in PER_CAR_SERVICES)
+    return (*IDENTITIES, *own)
+
+
 #: The identity of the hub in the secure profile: the router (``services/router``, the
 #: roster's hub) carries the access rules; every other process, the launcher included, is a
 #: client of it.

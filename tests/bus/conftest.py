@@ -16,6 +16,8 @@ from shared.messages import (
     LogEvent,
     Message,
     Odom,
+    Opponents,
+    OpponentTrack,
     Plan,
     Pose,
     Scan,
@@ -131,6 +133,15 @@ SAMPLE_FACTORIES: dict[type[Message], Callable[[], Message]] = {
     LogEvent: lambda: LogEvent(stamp_s=5.0, level="warning", source="planner", text="slow solve"),
     SimControl: lambda: SimControl(stamp_s=6.0, action="reset"),
     Teleport: lambda: Teleport(stamp_s=7.0, x_m=-0.3, y_m=1.2, yaw_rad=0.1, speed_mps=0.5),
+    Opponents: lambda: Opponents(
+        stamp_s=8.0,
+        source_stamp_s=7.95,
+        tracks=[
+            OpponentTrack(id=3, x_m=4.0, y_m=-1.5, vx_mps=2.5, vy_mps=0.3, yaw_rad=0.12,
+                          length_m=0.58, width_m=0.31, cov_xx_m2=4e-4, cov_xy_m2=1e-5,
+                          cov_yy_m2=3e-4, speed_var_m2ps2=0.02, age_s=1.25, hits=14)
+        ],
+    ),
 }
 
 

@@ -25,6 +25,8 @@ from shared.messages import (
     LogEvent,
     Message,
     Odom,
+    Opponents,
+    OpponentTrack,
     Plan,
     Pose,
     Scan,
@@ -151,6 +153,14 @@ CASES: dict[str, Callable[[], Message]] = {
     "sim_control": lambda: SimControl(stamp_s=6.0, action="reset"),
     # added with the type (no first-codec payload): the bytes of msgpack.packb of its map
     "teleport": lambda: Teleport(stamp_s=7.0, seq=9, x_m=-0.3, y_m=1.2, yaw_rad=0.1),
+    # added with the type (no first-codec payload): the bytes of msgpack.packb of its map
+    "opponents": lambda: Opponents(
+        stamp_s=8.0, seq=2, source_stamp_s=7.5,
+        tracks=[OpponentTrack(id=1, x_m=4.0, y_m=-1.5, vx_mps=2.5, vy_mps=0.5, yaw_rad=0.25,
+                              length_m=0.5, width_m=0.25, cov_xx_m2=0.25, cov_xy_m2=0.0,
+                              cov_yy_m2=0.125, speed_var_m2ps2=0.5, age_s=1.5, hits=7)],
+    ),
+    "opponents_empty": lambda: Opponents(stamp_s=8.0, seq=3, source_stamp_s=7.5),
 }
 
 #: name -> hex of the payload, or (length, SHA-256 hex) for long payloads.
@@ -311,6 +321,12 @@ GOLDEN: dict[str, str | tuple[int, str]] = {
         "88a474797065a874656c65706f7274a17601a77374616d705f73cb401c000000000000a373657109"
         "a3785f6dcbbfd3333333333333a3795f6dcb3ff3333333333333a77961775f726164cb3fb9999999"
         "99999aa973706565645f6d7073cb0000000000000000"
+    ),
+    "opponents": (301, "3a12436352a874f723c12a9a11de74e4d5167c82d67fae2cede881a0be6f1b70"),
+    "opponents_empty": (
+        "87a474797065a96f70706f6e656e7473a17601a77374616d705f73cb4020000000000000a3736571"
+        "03ae736f757263655f7374616d705f73cb401e000000000000a56672616d65a36d6170a674726163"
+        "6b7390"
     ),
 }
 

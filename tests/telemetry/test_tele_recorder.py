@@ -296,3 +296,24 @@ def test_tele_serve_port_checks_and_no_viewer_without_display(
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setattr(sys, "platform", "linux")
     assert spawn_viewer("rerun+http://127.0.0.1:1/proxy") is None  # never a viewer here
+
+
+def test_tele_recorder_logs_opponents_as_boxes_and_a_count(recording: Rec) -> None:
+    from shared.keys import OPPONENTS
+    from shared.messages import Opponents, OpponentTrack
+
+    rec, path = recording
+    recorder = Recorder(rec, TelemetrySettings())
+    now = time.time()
+    track = OpponentTrack(id=2, x_m=1.0, y_m=0.5, vx_mps=2.0, vy_mps=0.0, yaw_rad=0.0,
+                          length_m=0.58, width_m=0.31, cov_xx_m2=1e-4, cov_xy_m2=0.0,
+                          cov_yy_m2=1e-4, speed_var_m2ps2=0.01, age_s=0.5, hits=6)
+    for i in range(5):
+        t = now + 0.05 * i
+        tracks = [track] if i else []
+        recorder.handle(OPPONENTS, Opponents(stamp_s=t, source_stamp_s=t, tracks=tracks), t)
+    _close(rec, recorder)
+    data = report.read_recording(path)
+    assert recorder.errors == 0 and recorder.counts[OPPONENTS] == 5
+    _, n = data.series["opponents/count"]
+    assert n[0] == 0 and n[-1] == 1

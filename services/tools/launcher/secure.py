@@ -49,10 +49,11 @@ def certs_dir_for_run(
                     f"{configured} --force makes a full set)")
         return configured, False
     from shared.security.certs import CertsError, make_certs
+    from shared.security.identities import IDENTITIES
 
     out = run_dir / "certs"
-    try:
-        make_certs(out, force=True)
+    try:  # the known identities and the run's own (each car's services in a race)
+        make_certs(out, tuple(dict.fromkeys((*IDENTITIES, *identities))), force=True)
     except CertsError as exc:
         return f"secure profile: {exc}"
     return out, True

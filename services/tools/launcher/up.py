@@ -36,6 +36,10 @@ Before the planner process starts, ``up`` makes the minimum-time lap its method 
 (``services.planner.ensure_artefacts``: ``cimpcc-line``, a ``min_time`` raceline; a line
 on stdout while IPOPT solves, once per track, car and settings): the planner process only
 reads it. A lap with no solution on the track is one line and exit code 2 too.
+
+Several cars (``--cars N`` or a ``[[cars]]`` list of two or more, issue #24): one simulator
+for all, a bridge, planner and telemetry per car, one lap table with a column per car and
+the incidents at the end (``multicar.py``).
 """
 
 from __future__ import annotations
@@ -112,28 +116,41 @@ class UpOptions:
     #: `config_path` as it is.
     config_data: dict | None = None
     verbose: bool = False
+    #: ``--cars N``: race N cars (None: the configuration's ``[[cars]]``, else one car)
+    cars: int | None = None
 
 
 def up_config(
-    config_path: str | None, track: str | None = None, method: str | None = None
+    config_path: str | None,
+    track: str | None = None,
+    method: str | None = None,
+    cars: int | None = None,
 ) -> tuple[RacestackConfig, dict | None]:
-    """The configuration of ``up`` with ``--track``/``--method`` applied: (the validated
-    configuration, the TOML tables the services are to read, None without overrides).
+    """The configuration of ``up`` with ``--track``/``--method``/``--cars`` applied: (the
+    validated configuration, the TOML tables the services are to read, None without
+    overrides and with one car). With several cars (``--cars N >= 2`` or a ``[[cars]]``
+    list of two or more) the tables are always returned (each car's file is made of them).
 
     Raises:
         ConfigError: the file or a value is invalid (an unknown method among them).
     """
+    from services.tools.launcher.multicar import cars_config
     from shared.config import load_config
 
     cfg = load_config(config_path)  # the file's own one-line errors first
-    if track is None and method is None:
+    several = (cars is not None and cars >= 2) or (cars is None and len(cfg.cars) >= 2)
+    if track is None and method is None and not several:
         return cfg, None
     data = tomllib.loads(Path(config_path).read_text(encoding="utf-8")) if config_path else {}
     if track is not None:
         data.setdefault("track", {})["source"] = track
     if method is not None:
         data.setdefault("planner", {})["method"] = method
-    where = f"{config_path or 'the built-in configuration'} with --track/--method"
+    if several:
+        data = cars_config(data, cars if cars is not None else len(cfg.cars))
+    elif cars == 1:
+        data.pop("cars", None)
+    where = f"{config_path or 'the built-in configuration'} with --track/--method/--cars"
     return config_from_dict(data, where), data
 
 
@@ -186,12 +203,25 @@ def run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False) 
     first the certificates and the router (``services.tools.launcher.secure``)."""
     if cfg.bus.security != "mtls":
         return _run_up(cfg, opts, stop_requested)
+    identities: tuple[str, ...] = opts.services
+    if len(cfg.cars) >= 2:  # each car's services have their own certificate
+        from services.tools.launcher.multicar import write_car_configs
+        from shared.security.identities import car_identity
+
+        names = [c.name for c in cfg.cars]
+        identities = (*opts.services,
+                      *(car_identity(s, c) for c in names for s in opts.services))
+        if opts.run_dir is None:
+            opts.run_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+        # the router reads the race's configuration: the rules of every car
+        base, _ = write_car_configs(opts.config_data or {}, cfg, opts.run_dir)
+        opts.config_path = str(base)
     from services.tools.launcher.secure import run_secure
 
     if opts.run_dir is None:
         opts.run_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     run_dir = opts.run_dir
-    return run_secure(cfg, opts.config_path, run_dir, opts.services,
+    return run_secure(cfg, opts.config_path, run_dir, identities,
                       lambda: _run_up(cfg, opts, stop_requested))
 
 
@@ -218,8 +248,10 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
         return _cannot_start(f"{problem}; give --run-dir a folder you can write")
     if "planner" in opts.services:  # the planner process only reads its minimum-time lap
         try:
-            ensure_artefacts(cfg.planner.method, track, cfg.planner, cfg.vehicle,
-                             progress=_say)
+            methods = {c.method or cfg.planner.method for c in cfg.cars} or {
+                cfg.planner.method}
+            for method in sorted(methods):
+                ensure_artefacts(method, track, cfg.planner, cfg.vehicle, progress=_say)
         except MinTimeError as exc:
             remove_empty_dirs(created)
             return _cannot_start(str(exc))
@@ -236,19 +268,28 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
                 f"the services would connect to {', '.join(unreachable)}, where this hub "
                 f"does not listen ({', '.join(bus.settings.listen)}): fix [bus] connect"
             )
-        if opts.config_data is not None:  # --track/--method: the services read this one
+        several = len(cfg.cars) >= 2
+        if opts.config_data is not None and not several:  # --track/--method: this one
             path = run_dir / "config.toml"
             path.write_text(toml_dumps(opts.config_data, "racestack up: the configuration "
                                        "the services read (--track/--method applied)"),
                             encoding="utf-8")
             opts.config_path = str(path)
+        who = (f"{len(cfg.cars)} cars ({', '.join(c.name for c in cfg.cars)})" if several
+               else cfg.planner.method)
         print(
-            f"racestack up: {cfg.planner.method} on {track.name} ({track.length_m:.2f} m), "
+            f"racestack up: {who} on {track.name} ({track.length_m:.2f} m), "
             f"an out lap and {plural(opts.laps, 'timed lap')}; logs and telemetry in {run_dir}",
             flush=True,
         )
         file_log = run_log(run_dir / "logs" / "launcher.log", opts.verbose)
         try:
+            if several:
+                from services.tools.launcher.multicar import race_cars
+
+                return race_cars(cfg, opts, bus, track, run_dir, stop_requested,
+                                 opts.config_data or {"cars": [c.model_dump(exclude_none=True)
+                                                               for c in cfg.cars]})
             return _race(cfg, opts, bus, track, run_dir, stop_requested)
         finally:
             logging.getLogger().removeHandler(file_log)
