@@ -37,9 +37,10 @@ at or before the teleport are dropped (counted, not reported as rejections).
 
 Opponents (``[localization.opponents]``, on by default in a race of several cars): every
 ``vehicle/scan`` that arrives also goes, on a worker of its own (a one-slot channel: a scan
-that waits is replaced by the newer one, never queued; with ``pose_source = "lidar"`` on the scan worker, after
-the state of that scan went out), through the opponent detector and tracker
-(``opponent_feed.OpponentFeed``) with the fused state moved back to the scan's stamp; each
+that waits is replaced by the newer one, never queued; with ``pose_source = "lidar"`` on the
+scan worker, after the state of that scan went out), through the opponent detector and
+tracker (``opponent_feed.OpponentFeed``) with the fused state moved back to the scan's
+stamp; each
 scan gives one ``opponents`` record (the confirmed tracks; an empty list when none). No
 scan, no record. Scans while the state is not valid, or further than ``max_pose_age_s``
 from it, are counted and skipped; a teleport forgets the tracks. Its cost per scan (CPU
