@@ -13,17 +13,25 @@ a car going round a bend stays in the bend). Stage k at ``t_k = k dt``::
     s_k = s_0 + v_s t_k,        e_k = e_0                         [m]
 
 with ``(s_0, e_0)`` the projection of its centre on the line (``e`` right +, the ``Track``
-convention).
+convention). Given the line's speed profile ``v_p(s)`` (``profile_mps``), the opponent keeps
+instead its **share of that profile**, ``rho = v_s / v_p(s_0)`` (clipped to [0,
+``MAX_PROFILE_SHARE``]): ``s_(k+1) = s_k + rho v_p(s_k) dt`` -- it brakes for the bends the
+line brakes for (a car held at constant speed would drive through a hairpin at its straight
+speed in the prediction). A stopped car stays stopped either way.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from shared.car import CAR
 from shared.track import Track
+
+#: The largest share of the line's speed profile an opponent is predicted to keep [1].
+MAX_PROFILE_SHARE = 1.2
 
 
 @dataclass(frozen=True)
@@ -83,12 +91,16 @@ def predict_on_line(
     opponent: OpponentEstimate,
     t_s: np.ndarray,
     s_hint_m: float | None = None,
+    profile_mps: Callable[[float], float] | None = None,
 ) -> OpponentPrediction:
-    """`opponent` at the times `t_s` (K,) [s] from now, at constant progress speed along
-    `line` and constant offset from it (module docstring).
+    """`opponent` at the times `t_s` (K,) [s] from now (increasing), at constant progress
+    speed along `line` (or its share of `profile_mps`) and constant offset from it
+    (module docstring).
 
     Args:
         s_hint_m: arc length near which to project (None: the whole line).
+        profile_mps: the line's planned speed [m/s] at an arc length [m] (None: constant
+            progress speed).
     """
     if s_hint_m is None:
         s0, e0 = line.project(np.array([opponent.x_m, opponent.y_m]))
@@ -97,9 +109,17 @@ def predict_on_line(
     s0, e0 = float(s0), float(e0)
     v_s = progress_speed(line, s0, opponent.vx_mps, opponent.vy_mps)
     t = np.asarray(t_s, dtype=float)
+    if profile_mps is None:
+        s_k = s0 + v_s * t
+    else:
+        share = min(max(v_s / max(profile_mps(s0), 0.1), 0.0), MAX_PROFILE_SHARE)
+        s_k = np.empty(t.shape)
+        s_k[0] = s0 + v_s * t[0]
+        for k in range(1, len(t)):
+            s_k[k] = s_k[k - 1] + share * profile_mps(s_k[k - 1]) * (t[k] - t[k - 1])
     return OpponentPrediction(
         id=opponent.id,
-        s_m=s0 + v_s * t,
+        s_m=s_k,
         e_m=np.full(t.shape, e0),
         v_s_mps=v_s,
         length_m=opponent.length_m,

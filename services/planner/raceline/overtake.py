@@ -64,12 +64,14 @@ class OvertakeParams:
         gap_min_m: g_min, bumper-to-bumper gap kept when following [m].
         gain_gap_per_s: k_gap, speed per metre of gap error when following [1/s].
         wall_margin_m: m_wall, clearance to the track boundaries [m].
-        lateral_rate_mps: r, lateral speed of the target's ramp [m/s].
+        lateral_rate_mps: r, lateral speed the plan assumes (the planner ramps its
+            target twice as fast, so the car can keep up with the plan) [m/s].
         lateral_lag_s: t_lag, the tracker's lag before the car moves sideways [s].
         change_weight: w_change, cost of changing the side of a pass [m].
         curve_factor_min: f_min, lowest speed factor off the line [1].
         curve_preview_s: how far ahead the bend's radius scales the speed [s].
         target_time_s: the tracker's target is the planned path this far ahead [s].
+        ego_accel_mps2: how fast the ego's predicted speed returns to the line's [m/s^2].
         ego_length_m, ego_width_m: the ego's footprint [m].
     """
 
@@ -81,12 +83,13 @@ class OvertakeParams:
     gap_min_m: float = 0.35
     gain_gap_per_s: float = 1.5
     wall_margin_m: float = 0.04
-    lateral_rate_mps: float = 1.0
+    lateral_rate_mps: float = 0.7
     lateral_lag_s: float = 0.15
     change_weight: float = 0.5
     curve_factor_min: float = 0.6
     curve_preview_s: float = 1.0
-    target_time_s: float = 0.3
+    target_time_s: float = 0.5
+    ego_accel_mps2: float = 3.0
     ego_length_m: float = CAR.length_m
     ego_width_m: float = CAR.width_m
 
@@ -117,12 +120,23 @@ class OvertakePlan:
 FREE = OvertakePlan(0.0, math.inf, 1.0, "line")
 
 
-def ego_progress(ref: ReferenceLap, s0_m: float, times_s: np.ndarray) -> np.ndarray:
-    """(K,) ego arc length [m] at `times_s` along the line's speed profile from `s0_m`."""
+def ego_progress(
+    ref: ReferenceLap,
+    s0_m: float,
+    times_s: np.ndarray,
+    v0_mps: float | None = None,
+    accel_mps2: float = 3.0,
+) -> np.ndarray:
+    """(K,) ego arc length [m] at `times_s` from `s0_m`: the line's speed profile, or from
+    the speed `v0_mps` gaining at most `accel_mps2` up to it (a car held behind another
+    does not jump back to the line's speed)."""
     s = np.empty(len(times_s))
     s[0] = s0_m
+    v = math.inf if v0_mps is None else v0_mps
     for k in range(1, len(times_s)):
-        s[k] = s[k - 1] + float(ref.at("v", s[k - 1])) * (times_s[k] - times_s[k - 1])
+        dt = times_s[k] - times_s[k - 1]
+        v = min(float(ref.at("v", s[k - 1])), v + accel_mps2 * dt)
+        s[k] = s[k - 1] + v * dt
     return s
 
 
@@ -167,6 +181,7 @@ def plan_around(
     opponents: list[OpponentPrediction],
     previous_offset_m: float,
     params: OvertakeParams,
+    v_e_mps: float | None = None,
 ) -> OvertakePlan:
     """The plan of one tick (module docstring).
 
@@ -175,6 +190,7 @@ def plan_around(
         s_e_m, e_e_m: the ego's CoG on the line (arc length, offset right +) [m].
         opponents: predictions on the same line at ``params.times()``.
         previous_offset_m: the last tick's target [m] (its sign: the side of a pass).
+        v_e_mps: the ego's speed now [m/s] (None: on the profile; ``ego_progress``).
     """
     if not opponents:
         return FREE
@@ -182,7 +198,7 @@ def plan_around(
     line = ref.line
     L_line = line.length_m
     t = p.times()
-    s_e = ego_progress(ref, s_e_m, t)  # (K,)
+    s_e = ego_progress(ref, s_e_m, t, v_e_mps, p.ego_accel_mps2)  # (K,)
     v_e = np.asarray(ref.at("v", s_e), dtype=float)
     ds = np.stack([o.s_m for o in opponents]) - s_e[None, :]  # (J, K) ahead of the ego
     ds = (ds + 0.5 * L_line) % L_line - 0.5 * L_line
@@ -195,6 +211,7 @@ def plan_around(
     )  # (J, K)
     if not near.any():
         return FREE
+    beside = np.abs(ds) < length + p.margin_longitudinal_m  # (J, K): side by side
     w_r, w_l = line.interp_width(s_e)
     room = 0.5 * p.ego_width_m + p.wall_margin_m
     lo_track = -(np.asarray(w_l, dtype=float) - room)
@@ -207,7 +224,7 @@ def plan_around(
     for sides in np.ndindex(*(2,) * J):
         lo, hi = lo_track.copy(), hi_track.copy()
         for j, side in enumerate(sides):
-            nj = near[j]
+            nj = beside[j]
             if side:  # right of it
                 lo = np.where(nj, np.maximum(lo, e_o[j] + clear[j, 0]), lo)
             else:
@@ -255,7 +272,7 @@ def plan_around(
 
 def _follow_speed(ds0: float, v_o: float, length: float, p: OvertakeParams) -> float:
     """Speed [m/s] that closes to the follow gap behind a car `ds0` [m] ahead at `v_o`."""
-    gap = ds0 - 2.0 * length - p.gap_min_m - p.gap_time_s * max(v_o, 0.0)
+    gap = ds0 - length - p.gap_min_m - p.gap_time_s * max(v_o, 0.0)
     return max(0.0, v_o + p.gain_gap_per_s * gap)
 
 

@@ -489,8 +489,16 @@ class RacelinePlanner:
         s_e, e_e = self.tracker.project(cx, cy, hint)
         t = self.overtake.times()
         line = self.raceline.track
-        preds = [predict_on_line(line, o, t, s_e) for o in self.opponents]
-        return plan_around(self.raceline.reference, s_e, e_e, preds, self._offset, self.overtake)
+        ref = self.raceline.reference
+        speed = ref.at  # the line's profile: opponents keep their share of it
+        preds = [
+            predict_on_line(line, o, t, s_e, lambda s: float(speed("v", s)))
+            for o in self.opponents
+        ]
+        return plan_around(
+            self.raceline.reference, s_e, e_e, preds, self._offset, self.overtake,
+            v_e_mps=self._speed_cmd,
+        )
 
     @cached_property
     def _slow_trackers(self) -> list[Tracker]:
@@ -590,7 +598,7 @@ class RacelinePlanner:
             self._joining = ramps_from_rest(self.vehicle)
         plan = self.plan = self._plan_around(cx, cy, hint)
         if plan is not FREE or self._offset != 0.0:  # ramp the offset towards the plan's
-            step = self.overtake.lateral_rate_mps * self.settings.dt_s
+            step = 2.0 * self.overtake.lateral_rate_mps * self.settings.dt_s
             self._offset += min(max(plan.offset_m - self._offset, -step), step)
         tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset)
         self._s_line = tc.s_m
