@@ -241,7 +241,13 @@ def plan_around(
     look = min(len(t) - 1, max(1, round(p.target_time_s / p.stage_s)))
     if best is not None:
         path = best[1]
-        d = float(path[look])
+        # move out early: aim at where the car must be when it comes beside (the lazy
+        # path leaves the line at the last moment, and the real car lags the plan)
+        first = np.nonzero(beside.any(axis=0))[0]
+        k = max(look, int(first[0])) if first.size else look
+        # ... but inside the track over the way there
+        d = min(max(float(path[k]), float(lo_track[: k + 1].max())),
+                float(hi_track[: k + 1].min()))
         cap = _cap_now(ds, e_o, e_e_m, width, length, opponents, p)
         mode = "pass" if np.max(np.abs(path)) > 0.02 else "line"
         return OvertakePlan(d, cap, _curve_factor(ref, s_e, path, p), mode, ids)
