@@ -2,32 +2,31 @@
 (issue #24). Pure maths, no I/O; used by ``RacelinePlanner`` when it is given opponents.
 
 Frame: the racing line (``Track``, ``e`` right +, its widths the distances to the boundaries).
-The ego's CoG is at ``(s_e, e_e)``; each opponent is predicted at constant progress speed and
-offset (``services.planner.opponents.predict_on_line``) at the stages ``t_k = k dt_p``,
+The ego's CoG is at ``(s_e, e_e)``; each opponent is predicted keeping its share of the line's
+speed profile and its offset (``services.planner.opponents.predict_on_line``) at the stages
+``t_k = k dt_p``,
 ``k = 0 .. K-1`` (``OvertakeParams.stages``, ``stage_s``).
 
-The plan of one tick is a lateral target ``d`` (right +, held over the horizon) and a speed
-cap:
+The plan of one tick is a lateral target ``d`` (right +) and a speed cap:
 
-1. Ego progress: ``s_(k+1) = s_k + v_p(s_k) dt_p`` (the line's speed profile), and lateral
-   position moving from ``e_e`` to ``d`` at ``lateral_rate_mps`` after ``lateral_lag_s``::
-
-       e_k = e_e + clip(d - e_e, -r max(t_k - t_lag, 0), +r max(t_k - t_lag, 0))
-
-2. Conflict of candidate ``d`` with opponent j at stage k: the two footprints overlap
-   longitudinally with a margin and laterally with a margin::
-
-       -(L + m_lon) < s_jk - s_k < L + m_lon + T_gap v_p(s_k)   and   |e_k - e_jk| < W + m_lat
-
-   (L, W the mean of the two cars' lengths and widths). A candidate is *safe* when it has no
-   conflict at any stage and keeps the ego ``W_e / 2 + m_wall`` inside both boundaries at
-   every stage up to the last one where it is beside an opponent.
-3. Candidates: ``d = 0`` (the line), the current target, and a grid across the line's
-   width. Cost (a proxy of the time lost): ``|d| + w_change |d - d_prev|``. The cheapest
-   safe candidate wins; this chooses the side by what is faster (less deviation from the
-   line) among the safe ones.
-4. No safe candidate: **follow** on the line (or keep the current side when already beside
-   a car), with a speed cap behind each opponent ahead that the ego's path conflicts with::
+1. Ego progress: from its speed now, gaining at most ``ego_accel_mps2`` up to the line's
+   profile: ``v_(k+1) = min(v_p(s_k), v_k + a dt_p)``, ``s_(k+1) = s_k + v_(k+1) dt_p``.
+2. Opponent j is *near* at stage k when ``-(L + m_lon) < s_jk - s_k < L + m_lon + T_gap
+   v_p(s_k)`` and *beside* when ``|s_jk - s_k| < L + m_lon`` (L, W the means of the two
+   cars' lengths and widths). Nobody near: the line, no cap.
+3. A pass leaves each opponent on one side (two opponents: four combinations). Its
+   corridor per stage is the track (``W_e / 2 + m_wall`` inside both boundaries) and, at
+   the stages beside opponent j, ``e_k >= e_jk + W + m_lat`` (passing on its right) or
+   ``e_k <= e_jk - (W + m_lat)`` (its left). ``corridor_path`` finds the path nearest the
+   line inside it that the car can follow (``lateral_rate_mps`` after ``lateral_lag_s``),
+   or none. Cost, a proxy of the time lost: the mean ``|e_k|`` (plus ``change_weight``
+   for changing the side of a pass under way); the cheapest feasible pass wins, which
+   chooses the side by what is faster and safe. The target ``d`` is the path where the car
+   must be when it first comes beside (it moves out early: the real car lags the plan),
+   within the track over the way there.
+4. No feasible pass: **follow** -- towards the line, but on its side of any car it
+   overlaps now (never squeezed into it), with a speed cap behind each opponent ahead
+   that the path conflicts with::
 
        v_cap = max(0, v_s,j + k_gap (s_j0 - s_e - L - g_min - T_gap v_s,j))        [m/s]
 
@@ -35,8 +34,9 @@ cap:
    of safety over the prediction). The ego never aims into a predicted footprint and slows
    behind one it cannot pass: it never initiates contact.
 5. Off the line the planned speed is scaled to the bend's radius at the offset,
-   ``sqrt(clip(1 + kappa d, f_min, 1))`` (``kappa`` left +: inside a left bend ``d < 0``),
-   the smallest over the next ``curve_preview_s``, so the pass keeps the grip margin.
+   ``sqrt(clip(1 + kappa e_k, f_min^2, 1))`` (``kappa`` left +: inside a left bend
+   ``e < 0``), the smallest over the next ``curve_preview_s``, so the pass keeps the grip
+   margin. (Below the line's speed ``RacelinePlanner`` steers from steady-state trackers.)
 """
 
 from __future__ import annotations
