@@ -15,20 +15,23 @@ a car going round a bend stays in the bend). Stage k at ``t_k = k dt``::
 with ``(s_0, e_0)`` the projection of its centre on the line (``e`` right +, the ``Track``
 convention). Given the line's speed profile ``v_p(s)`` (``profile_mps``), the opponent keeps
 instead its **share of that profile**, ``rho = v_s / v_p(s_0)`` (clipped to [0,
-``MAX_PROFILE_SHARE``]): ``s_(k+1) = s_k + rho v_p(s_k) dt`` -- it brakes for the bends the
+``MAX_PROFILE_SHARE``]): ``ds/dt = rho v_p(s)`` -- it brakes for the bends the
 line brakes for (a car held at constant speed would drive through a hairpin at its straight
 speed in the prediction). A stopped car stays stopped either way.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from shared.car import CAR
 from shared.track import Track
+
+if TYPE_CHECKING:
+    from services.planner.raceline.tracker import ReferenceLap
 
 #: The largest share of the line's speed profile an opponent is predicted to keep [1].
 MAX_PROFILE_SHARE = 1.2
@@ -91,7 +94,7 @@ def predict_on_line(
     opponent: OpponentEstimate,
     t_s: np.ndarray,
     s_hint_m: float | None = None,
-    profile_mps: Callable[[float], float] | None = None,
+    profile: ReferenceLap | None = None,
 ) -> OpponentPrediction:
     """`opponent` at the times `t_s` (K,) [s] from now (increasing), at constant progress
     speed along `line` (or its share of `profile_mps`) and constant offset from it
@@ -99,8 +102,9 @@ def predict_on_line(
 
     Args:
         s_hint_m: arc length near which to project (None: the whole line).
-        profile_mps: the line's planned speed [m/s] at an arc length [m] (None: constant
-            progress speed).
+        profile: the line's plan (its speed profile and clock; None: constant progress
+            speed). Keeping the share ``rho`` of its speed is moving along its clock
+            ``rho`` times as fast: ``s_k = s_plan(t_plan(s_0) + rho t_k)``.
     """
     if s_hint_m is None:
         s0, e0 = line.project(np.array([opponent.x_m, opponent.y_m]))
@@ -109,14 +113,13 @@ def predict_on_line(
     s0, e0 = float(s0), float(e0)
     v_s = progress_speed(line, s0, opponent.vx_mps, opponent.vy_mps)
     t = np.asarray(t_s, dtype=float)
-    if profile_mps is None:
+    if profile is None:
         s_k = s0 + v_s * t
     else:
-        share = min(max(v_s / max(profile_mps(s0), 0.1), 0.0), MAX_PROFILE_SHARE)
-        s_k = np.empty(t.shape)
-        s_k[0] = s0 + v_s * t[0]
-        for k in range(1, len(t)):
-            s_k[k] = s_k[k - 1] + share * profile_mps(s_k[k - 1]) * (t[k] - t[k - 1])
+        share = min(max(v_s / max(float(profile.at("v", s0)), 0.1), 0.0), MAX_PROFILE_SHARE)
+        t0 = float(profile.at("t", s0))
+        s_plan0 = float(profile.s_at_time(t0))  # s0 as the clock's inverse gives it
+        s_k = s0 + (np.asarray(profile.s_at_time(t0 + share * t), dtype=float) - s_plan0)
     return OpponentPrediction(
         id=opponent.id,
         s_m=s_k,

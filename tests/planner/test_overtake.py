@@ -66,12 +66,13 @@ def test_an_opponent_is_predicted_along_the_line_at_its_progress_speed() -> None
     assert p.id == 7 and p.v_s_mps == pytest.approx(2.0, abs=1e-3)
     np.testing.assert_allclose(p.s_m, s0 + 2.0 * t, atol=1e-3)
     np.testing.assert_allclose(p.e_m, 0.0, atol=1e-3)
-    # with the line's profile (4 m/s here, then 2 m/s ahead) it keeps its share of it
-    prof = lambda s: 4.0 if s < s0 + 0.25 else 2.0  # noqa: E731
-    q = predict_on_line(line, o, t, s0, prof)
-    assert np.all(np.diff(q.s_m[1:]) < np.diff(p.s_m[1:]) + 1e-9)
+    # with the line's profile (4 m/s here, 2 m/s from 10.25 m on) it keeps its share (half)
+    v = np.where((ref.s_m > s0 + 0.25) & (ref.s_m < 100.0), 2.0, 4.0)
+    slow = ReferenceLap.from_path(line, ref.kappa_1pm, v, F1TENTH_GYM)
+    q = predict_on_line(line, o, t, s0, slow)
+    assert q.s_m[-1] < p.s_m[-1] - 0.1 and q.s_m[1] == pytest.approx(p.s_m[1], abs=0.02)
     stopped = OpponentEstimate(1, x, y, 0.0, 0.0, h)
-    np.testing.assert_allclose(predict_on_line(line, stopped, t, s0, prof).s_m, s0, atol=1e-3)
+    np.testing.assert_allclose(predict_on_line(line, stopped, t, s0, slow).s_m, s0, atol=1e-3)
 
 
 def test_the_corridor_path_is_rate_limited_and_none_when_out_of_reach() -> None:

@@ -9,8 +9,8 @@ speed profile and its offset (``services.planner.opponents.predict_on_line``) at
 
 The plan of one tick is a lateral target ``d`` (right +) and a speed cap:
 
-1. Ego progress: from its speed now, gaining at most ``ego_accel_mps2`` up to the line's
-   profile: ``v_(k+1) = min(v_p(s_k), v_k + a dt_p)``, ``s_(k+1) = s_k + v_(k+1) dt_p``.
+1. Ego progress: along the line's clock, but no further than from its speed now gaining
+   ``ego_accel_mps2``: ``s_k = min(s_plan(t_plan(s_e) + t_k), s_e + v_e t_k + a t_k^2 / 2)``.
 2. Opponent j is *near* at stage k when ``-(L + m_lon) < s_jk - s_k < L + m_lon + T_gap
    v_p(s_k)`` and *beside* when ``|s_jk - s_k| < L + m_lon`` (L, W the means of the two
    cars' lengths and widths). Nobody near: the line, no cap.
@@ -127,17 +127,15 @@ def ego_progress(
     v0_mps: float | None = None,
     accel_mps2: float = 3.0,
 ) -> np.ndarray:
-    """(K,) ego arc length [m] at `times_s` from `s0_m`: the line's speed profile, or from
-    the speed `v0_mps` gaining at most `accel_mps2` up to it (a car held behind another
-    does not jump back to the line's speed)."""
-    s = np.empty(len(times_s))
-    s[0] = s0_m
-    v = math.inf if v0_mps is None else v0_mps
-    for k in range(1, len(times_s)):
-        dt = times_s[k] - times_s[k - 1]
-        v = min(float(ref.at("v", s[k - 1])), v + accel_mps2 * dt)
-        s[k] = s[k - 1] + v * dt
-    return s
+    """(K,) ego arc length [m] at `times_s` from `s0_m`: along the line's clock (its speed
+    profile), or no further than from the speed `v0_mps` gaining `accel_mps2` (a car held
+    behind another does not jump back to the line's speed)."""
+    t = np.asarray(times_s, dtype=float)
+    t0 = float(ref.at("t", s0_m))
+    on_plan = s0_m + np.asarray(ref.s_at_time(t0 + t), dtype=float) - float(ref.s_at_time(t0))
+    if v0_mps is None:
+        return on_plan
+    return np.minimum(on_plan, s0_m + v0_mps * t + 0.5 * accel_mps2 * t**2)
 
 
 def corridor_path(

@@ -489,12 +489,8 @@ class RacelinePlanner:
         s_e, e_e = self.tracker.project(cx, cy, hint)
         t = self.overtake.times()
         line = self.raceline.track
-        ref = self.raceline.reference
-        speed = ref.at  # the line's profile: opponents keep their share of it
-        preds = [
-            predict_on_line(line, o, t, s_e, lambda s: float(speed("v", s)))
-            for o in self.opponents
-        ]
+        ref = self.raceline.reference  # opponents keep their share of its profile
+        preds = [predict_on_line(line, o, t, s_e, ref) for o in self.opponents]
         return plan_around(
             self.raceline.reference, s_e, e_e, preds, self._offset, self.overtake,
             v_e_mps=self._speed_cmd,
