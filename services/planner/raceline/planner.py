@@ -42,8 +42,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import casadi as ca
@@ -54,6 +54,8 @@ from services.planner.mintime.model import servo_reach
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mintime.requests import min_time_settings, planning_vehicle
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
+from services.planner.opponents import OpponentEstimate, predict_on_line
+from services.planner.raceline.overtake import FREE, OvertakeParams, OvertakePlan, plan_around
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import (
     TELEPORT_JUMP_M,
@@ -95,6 +97,9 @@ SERVO_ALLOWANCE_S = 0.028
 #: spins the identified car.
 JOIN_SPEED_MPS = 2.0
 JOIN_TOLERANCE_M = 0.05
+#: Speed scales of the steering feed-forward tables used below the line's speed (a car
+#: held behind an opponent, ``RacelinePlanner._slow_steering``).
+FEED_FORWARD_SCALES = (0.4, 0.55, 0.7, 0.85, 1.0)
 #: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
 MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
 
@@ -352,6 +357,24 @@ def build_raceline(
     return build_min_time_raceline(track, settings, vehicle, steering_limits_rad, loader)
 
 
+def scaled_raceline(
+    raceline: Raceline, scale: float, vehicle: DynamicVehicleParams
+) -> Raceline:
+    """`raceline` driven at `scale` (0, 1] of its speed profile (an opponent below the
+    limit, issue #24): the same path, speeds ``x scale``, and the plan rebuilt for that
+    profile by ``ReferenceLap.from_path`` (the steady-state single-track steering and
+    acceleration demand at the new speeds). Scaling the minimum-time lap's own steering
+    instead left its dynamic part wrong and the car ran wide (18 off-track events in two
+    laps of map416 at 0.85, against 0 this way)."""
+    if not 0.0 < scale <= 1.0:
+        raise ValueError(f"speed scale must be in (0, 1], got {scale}")
+    if scale == 1.0:
+        return raceline
+    ref = raceline.reference
+    scaled = ReferenceLap.from_path(ref.line, ref.kappa_1pm, ref.v_mps * scale, vehicle)
+    return replace(raceline, speed_mps=raceline.speed_mps * scale, reference=scaled)
+
+
 def planner_timing(
     settings: PlannerSettings, vehicle: DynamicVehicleParams | None = None
 ) -> TrackerTiming:
@@ -396,9 +419,13 @@ class RacelinePlanner:
         raceline: Raceline | None = None,
         min_time_loader: MinTimeLoader | None = None,
         timer: Callable[[], float] = time.perf_counter,
+        speed_scale: float = 1.0,
+        overtake: OvertakeParams | None = None,
     ) -> None:
         """Build the raceline (or reuse one) on `track` for `vehicle` (None: the default
-        car, ``F1TENTH_GYM``); `method` is the name its results carry."""
+        car, ``F1TENTH_GYM``); `method` is the name its results carry; `speed_scale`
+        drives the line's speed profile scaled (``scaled_raceline``; 1: the line's own);
+        `overtake`: how it plans around opponents (``set_opponents``)."""
         self.method = method
         self.track = track
         self.settings = settings
@@ -410,6 +437,10 @@ class RacelinePlanner:
         self.raceline = raceline or build_raceline(
             track, settings.raceline, self.vehicle, self._delta_lim, min_time_loader
         )
+        self.raceline = scaled_raceline(self.raceline, speed_scale, self.vehicle)
+        self.overtake = overtake or OvertakeParams()
+        self.opponents: list[OpponentEstimate] = []
+        self.plan: OvertakePlan = FREE  #: the last tick's plan around the opponents
         self.tracker = Tracker.for_vehicle(
             self.raceline.reference,
             planner_timing(settings, self.vehicle),
@@ -444,6 +475,63 @@ class RacelinePlanner:
         self._drove = False  #: the last tick's command was the tracker's
         self._speed_cmd = 0.0  #: the last speed command [m/s]
         self._last_xy: tuple[float, float] | None = None  #: the last pose's position [m]
+        self._offset = 0.0  #: the lateral offset the tracker drives, ramped [m]
+        self.plan = FREE
+
+    def set_opponents(self, opponents: Sequence[OpponentEstimate]) -> None:
+        """The other cars for the next steps (an empty list: race the line alone)."""
+        self.opponents = list(opponents)
+
+    def _plan_around(self, cx: float, cy: float, hint: float | None) -> OvertakePlan:
+        """The overtaking plan (``raceline.overtake``) from the CoG and the opponents."""
+        if not self.opponents:
+            return FREE
+        s_e, e_e = self.tracker.project(cx, cy, hint)
+        t = self.overtake.times()
+        line = self.raceline.track
+        ref = self.raceline.reference  # opponents keep their share of its profile
+        preds = [predict_on_line(line, o, t, s_e, ref) for o in self.opponents]
+        return plan_around(
+            self.raceline.reference, s_e, e_e, preds, self._offset, self.overtake,
+            v_e_mps=self._speed_cmd,
+        )
+
+    @cached_property
+    def _slow_trackers(self) -> list[Tracker]:
+        """A tracker per ``FEED_FORWARD_SCALES`` (but the last) on the line at that share of
+        its speed profile (``ReferenceLap.from_path``: the steady-state steering and slip
+        at those speeds), for a car held below the line's speed."""
+        ref = self.raceline.reference
+        return [
+            Tracker.for_vehicle(
+                ReferenceLap.from_path(ref.line, ref.kappa_1pm, ref.v_mps * k, self.vehicle),
+                self.tracker.timing,
+                self.tracker.gains,
+                self.vehicle,
+            )
+            for k in FEED_FORWARD_SCALES[:-1]
+        ]
+
+    def _slow_steering(
+        self, cx: float, cy: float, yaw: float, hint: float, speed_mps: float, line_rad: float
+    ) -> float:
+        """Steering [rad] for a car held at `speed_mps`, below the line's: the line's own
+        feed-forward and reference yaw are for its speed (slower, the car needs less of the
+        dynamic part of the steering and slips less: it would run inside); interpolated
+        between the trackers of the two nearest ``FEED_FORWARD_SCALES`` (the top one is
+        the line's own, `line_rad`)."""
+        v_p = max(float(self.raceline.reference.at("v", hint)), 0.1)
+        ratio = min(max(speed_mps / v_p, FEED_FORWARD_SCALES[0]), 1.0)
+        scales = FEED_FORWARD_SCALES
+        i = min(int(np.searchsorted(scales, ratio, side="right")) - 1, len(scales) - 2)
+        lo = self._slow_trackers[i].command(cx, cy, yaw, hint, offset_m=self._offset)
+        if i + 1 == len(scales) - 1:
+            hi_rad = line_rad
+        else:
+            hi = self._slow_trackers[i + 1].command(cx, cy, yaw, hint, offset_m=self._offset)
+            hi_rad = hi.steering_rad
+        w = (ratio - scales[i]) / (scales[i + 1] - scales[i])
+        return (1.0 - w) * lo.steering_rad + w * hi_rad
 
     def prepare(self) -> None:
         """Nothing to do ahead of time (the ``Planner`` interface)."""
@@ -504,9 +592,19 @@ class RacelinePlanner:
         if was_recovering:  # hand back at the car's speed and ramp up
             self._handover.start(self._speed_cmd)
             self._joining = ramps_from_rest(self.vehicle)
-        tc = self.tracker.command(cx, cy, yaw_rad, hint)
+        plan = self.plan = self._plan_around(cx, cy, hint)
+        if plan is not FREE or self._offset != 0.0:  # ramp the offset towards the plan's
+            step = 2.0 * self.overtake.lateral_rate_mps * self.settings.dt_s
+            self._offset += min(max(plan.offset_m - self._offset, -step), step)
+        tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset)
         self._s_line = tc.s_m
-        speed = min(max(tc.speed_mps, self._speed_lim[0]), self._speed_lim[1])
+        speed = tc.speed_mps
+        steering = tc.steering_rad
+        if plan is not FREE:
+            speed = min(speed * plan.speed_factor, plan.speed_cap_mps)
+            if speed < tc.speed_mps - 0.05:
+                steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m, speed, steering)
+        speed = min(max(speed, self._speed_lim[0]), self._speed_lim[1])
         if self._joining:  # peaky tyres reach the line slowly, then ramp from there
             if abs(tc.e_m) > JOIN_TOLERANCE_M:
                 speed = min(speed, JOIN_SPEED_MPS)
@@ -516,8 +614,8 @@ class RacelinePlanner:
         if self._handover.active:
             speed = self._handover.cap(speed, self.settings.dt_s)
         self._speed_cmd = speed
-        self._drove = True
-        delta = min(max(tc.steering_rad, self._delta_lim[0]), self._delta_lim[1])
+        self._drove = plan.mode != "follow"  # waiting behind a car is not a stall
+        delta = min(max(steering, self._delta_lim[0]), self._delta_lim[1])
         cmd = DriveCommand(speed, delta)
         if on_command is not None:
             on_command(cmd)

@@ -366,7 +366,12 @@ class Tracker:
         return line.project_near(x_m, y_m, hint)
 
     def command(
-        self, x_m: float, y_m: float, yaw_rad: float, s_hint_m: float | None = None
+        self,
+        x_m: float,
+        y_m: float,
+        yaw_rad: float,
+        s_hint_m: float | None = None,
+        offset_m: float = 0.0,
     ) -> TrackerCommand:
         """The command from the CoG pose (x, y [m], yaw [rad]); see the module docstring.
 
@@ -374,11 +379,15 @@ class Tracker:
             x_m, y_m, yaw_rad: the car's CoG position and yaw.
             s_hint_m: arc length on the path near which to project (None: where the last
                 call projected, or the whole path on the first).
+            offset_m: drive this far right of the path (left: negative) [m]: the errors
+                ``e`` are taken from the offset (an overtake, ``raceline.overtake``); the
+                returned ``e_m`` stays the distance from the path itself.
         """
         p = self.plan
         g = self.gains
-        s, e = self.project(x_m, y_m, s_hint_m)
+        s, e_path = self.project(x_m, y_m, s_hint_m)
         self._s_hint = s
+        e = e_path - offset_m
         dpsi = wrap_angle(yaw_rad - p.at("yaw", s))
         v_p = p.at("v", s)
         l_d = g.lookahead_m(v_p)
@@ -401,4 +410,4 @@ class Tracker:
         a_cmd = float(np.mean(p.accel_at(s_speed))) - g.k_outward_per_s2 * outward
         k = self.k_accel if a_cmd >= 0.0 else self.k_brake
         speed = float(np.mean(p.at("v", s_speed))) + a_cmd / k
-        return TrackerCommand(speed, steering, s, e, dpsi, a_cmd, l_d)
+        return TrackerCommand(speed, steering, s, e_path, dpsi, a_cmd, l_d)

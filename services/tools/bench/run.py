@@ -51,6 +51,13 @@ from services.planner import (
 )
 from services.tools.bench.closed_loop import LoopOptions, run_method
 from services.tools.bench.estimation import ESTIMATORS
+from services.tools.bench.head_to_head import (
+    SOURCES,
+    HeadToHeadOptions,
+    OpponentSpec,
+    format_head_to_head,
+    run_head_to_head,
+)
 from services.tools.bench.tuned import TunedCimpcc, load_tuned, tuned_planner
 from shared.config import ConfigError, RacestackConfig, load_config
 from shared.config.methods import CIMPCC, METHODS, MPCC, bench_methods
@@ -504,7 +511,64 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
         "IMU and odometry through the bridge's EKF) or lidar (its lidar through the particle "
         "filter into the EKF)",
     )
+    ap.add_argument(
+        "--opponent", metavar="METHOD[:SPEED_SCALE]", default=None,
+        help="head to head: race each method against an opponent car, e.g. raceline:0.85 "
+        "(its line's speed profile scaled; a scale needs a line-tracking method), over "
+        "--seeds random start gaps; --laps is then the laps each start races (default: "
+        "none, the solo bench)",
+    )
+    ap.add_argument(
+        "--seeds", type=positive_int, default=10,
+        help="head to head: seeded starts per method (a whole number >= 1; default 10)",
+    )
+    ap.add_argument(
+        "--opponent-source", choices=list(SOURCES), default="truth",
+        help="head to head: the ego sees the opponent from the simulator's truth (default) "
+        "or from the tracker on its simulated lidar (lidar)",
+    )
+    ap.add_argument(
+        "--opponent-aware", action="store_true",
+        help="head to head: the opponent also plans around the ego when its method can "
+        "(default: it races its line blind)",
+    )
     return ap
+
+
+def main_head_to_head(args: argparse.Namespace, cfg: RacestackConfig, methods: list[str],
+                      track_spec: str, out: Path) -> int:
+    """``--opponent``: the head-to-head races, their table and results.json."""
+    try:
+        spec = OpponentSpec.parse(args.opponent)
+        if spec.method not in METHODS:
+            raise BenchError(f"unknown --opponent method {spec.method}; choose from "
+                             f"{', '.join(bench_methods())}")
+    except ValueError as exc:
+        print(f"racestack bench: error: {exc}", file=sys.stderr)
+        return 2
+    opts = HeadToHeadOptions(
+        laps=args.laps, seeds=args.seeds, source=args.opponent_source,
+        opponent_aware=args.opponent_aware, compute_delay_s=args.compute_delay_ms / 1e3,
+    )
+    track = load_track(track_spec)
+    t0 = time.perf_counter()
+    try:
+        doc = run_head_to_head(cfg, track, methods, spec, opts, progress=_stderr)
+    except (ValueError, TrackError) as exc:
+        print(f"racestack bench: error: {exc}", file=sys.stderr)
+        return 2
+    results = {
+        "track": track.name,
+        "track_length_m": track.length_m,
+        "opponent": {"method": spec.method, "speed_scale": spec.speed_scale},
+        "options": {k: v for k, v in opts.__dict__.items()},
+        "head_to_head": doc,
+        "wall_time_s": round(time.perf_counter() - t0, 2),
+    }
+    write_results(out / "results.json", results)
+    print(format_head_to_head(track.name, spec, doc, opts.laps))
+    print(f"results: {out / 'results.json'}")
+    return 0
 
 
 def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) -> int:
@@ -541,6 +605,8 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
     except (BenchError, ConfigError, TrackError) as exc:
         print(f"racestack bench: error: {exc}", file=sys.stderr)
         return 2
+    if getattr(args, "opponent", None):
+        return main_head_to_head(args, cfg, methods, track_spec, out)
     if tuned is not None:
         print(tuned.describe(), file=sys.stderr)
     if cfg.simulates_another_car:

@@ -1,0 +1,157 @@
+"""Planning with opponents (issue #24): the prediction along the line, the corridor plan,
+and a planner facing a stopped car on a straight (passes it or stops behind it, never
+touches it)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from services.planner.opponents import OpponentEstimate, predict_on_line
+from services.planner.raceline.overtake import OvertakeParams, corridor_path, plan_around
+from services.planner.raceline.planner import RacelinePlanner
+from services.planner.raceline.tracker import ReferenceLap
+from services.tools.bench.head_to_head import HeadToHeadOptions, race_seed
+from shared.config.planner import PlannerSettings, RacelineSettings
+from shared.config.simulator import SimulatorSettings
+from shared.config.vehicle import F1TENTH_GYM
+from shared.track import Track
+
+PLANNER = PlannerSettings(raceline=RacelineSettings(line="min_curvature"))
+
+
+def stadium(straight_m: float = 20.0, radius_m: float = 4.0, half_width_m: float = 1.0,
+            spacing_m: float = 0.1) -> Track:
+    """A closed stadium: two straights joined by half circles, counter-clockwise."""
+    pts = []
+    n_s = int(straight_m / spacing_m)
+    n_c = int(math.pi * radius_m / spacing_m)
+    for i in range(n_s):
+        pts.append((i * spacing_m, -radius_m))
+    for i in range(n_c):
+        a = -math.pi / 2 + math.pi * i / n_c
+        pts.append((straight_m + radius_m * math.cos(a), radius_m * math.sin(a)))
+    for i in range(n_s):
+        pts.append((straight_m - i * spacing_m, radius_m))
+    for i in range(n_c):
+        a = math.pi / 2 + math.pi * i / n_c
+        pts.append((radius_m * math.cos(a), radius_m * math.sin(a)))
+    xy = np.array(pts)
+    w = np.full(len(xy), half_width_m)
+    return Track("stadium", xy, w, w)
+
+
+def straight_line_lap(length_m: float = 200.0, v: float = 4.0, half_width_m: float = 1.0):
+    """A huge circle (nearly straight) as a plan at constant speed."""
+    radius = length_m / (2 * math.pi)
+    n = 2000
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    xy = radius * np.column_stack([np.cos(t), np.sin(t)])
+    line = Track("big", xy, np.full(n, half_width_m), np.full(n, half_width_m))
+    kappa = np.full(n, 1.0 / radius)
+    return ReferenceLap.from_path(line, kappa, np.full(n, v), F1TENTH_GYM)
+
+
+def test_an_opponent_is_predicted_along_the_line_at_its_progress_speed() -> None:
+    ref = straight_line_lap()
+    line = ref.line
+    s0 = 10.0
+    x, y = (float(v) for v in line.point_at(s0))
+    h = float(line.heading_at(s0))
+    o = OpponentEstimate(7, x, y, 2.0 * math.cos(h), 2.0 * math.sin(h), h)
+    t = np.arange(5) * 0.1
+    p = predict_on_line(line, o, t, s_hint_m=s0)
+    assert p.id == 7 and p.v_s_mps == pytest.approx(2.0, abs=1e-3)
+    np.testing.assert_allclose(p.s_m, s0 + 2.0 * t, atol=1e-3)
+    np.testing.assert_allclose(p.e_m, 0.0, atol=1e-3)
+    # with the line's profile (4 m/s here, 2 m/s from 10.25 m on) it keeps its share (half)
+    v = np.where((ref.s_m > s0 + 0.25) & (ref.s_m < 100.0), 2.0, 4.0)
+    slow = ReferenceLap.from_path(line, ref.kappa_1pm, v, F1TENTH_GYM)
+    q = predict_on_line(line, o, t, s0, slow)
+    assert q.s_m[-1] < p.s_m[-1] - 0.1 and q.s_m[1] == pytest.approx(p.s_m[1], abs=0.02)
+    stopped = OpponentEstimate(1, x, y, 0.0, 0.0, h)
+    np.testing.assert_allclose(predict_on_line(line, stopped, t, s0, slow).s_m, s0, atol=1e-3)
+
+
+def test_the_corridor_path_is_rate_limited_and_none_when_out_of_reach() -> None:
+    p = OvertakeParams()
+    t = p.times()
+    lo = np.full(len(t), -1.0)
+    hi = np.full(len(t), 1.0)
+    lo[15:] = 0.4  # must be 0.4 m right from 1.5 s on
+    path = corridor_path(0.0, lo, hi, t, p)
+    assert path is not None
+    assert np.all(np.abs(np.diff(path)) <= p.lateral_rate_mps * p.stage_s + 1e-9)
+    assert np.all(path[15:] >= 0.4 - 1e-9) and path[0] == 0.0
+    lo[2:] = 0.4  # in 0.2 s: out of reach
+    assert corridor_path(0.0, lo, hi, t, p) is None
+
+
+@pytest.mark.parametrize(("half_width", "mode"), [(1.0, "pass"), (0.3, "follow")])
+def test_a_slow_car_ahead_is_passed_where_there_is_room_else_followed(
+    half_width: float, mode: str
+) -> None:
+    ref = straight_line_lap(half_width_m=half_width)
+    line = ref.line
+    s_o = 16.0
+    x, y = (float(v) for v in line.point_at(s_o))
+    h = float(line.heading_at(s_o))
+    o = OpponentEstimate(1, x, y, 1.0 * math.cos(h), 1.0 * math.sin(h), h)
+    p = OvertakeParams()
+    pred = predict_on_line(line, o, p.times(), 10.0)
+    plan = plan_around(ref, 10.0, 0.0, [pred], 0.0, p, v_e_mps=4.0)
+    assert plan.mode == mode and plan.blocking == (1,)
+    if mode == "pass":
+        assert abs(plan.offset_m) > 0.3 and plan.speed_cap_mps > 4.0
+    else:  # and it slows down to keep its gap as it closes in
+        assert abs(plan.offset_m) < 0.05
+        near = plan_around(ref, s_o - 1.5, 0.0, [predict_on_line(line, o, p.times(), 14.5)],
+                           0.0, p, v_e_mps=4.0)
+        assert near.mode == "follow" and near.speed_cap_mps < 2.0
+
+
+def test_nobody_near_leaves_the_line_free() -> None:
+    ref = straight_line_lap()
+    line = ref.line
+    x, y = (float(v) for v in line.point_at(60.0))
+    o = OpponentEstimate(1, x, y, 0.0, 0.0, 0.0)
+    p = OvertakeParams()
+    plan = plan_around(ref, 10.0, 0.0, [predict_on_line(line, o, p.times(), 60.0)], 0.0, p,
+                       v_e_mps=1.0)
+    assert plan.mode == "line" and plan.offset_m == 0.0 and plan.speed_cap_mps == math.inf
+
+
+class StoppedCar:
+    """An opponent that stands still (a stopped car)."""
+
+    def __init__(self, settings: PlannerSettings) -> None:
+        self.settings = settings
+
+    def reset(self) -> None:
+        """Nothing to forget."""
+
+    def step(self, *pose: float):
+        from services.planner.interface import DriveCommand
+
+        class _R:
+            command = DriveCommand(0.0, 0.0)
+
+        return _R()
+
+
+@pytest.mark.parametrize("half_width", [1.0, 0.32])
+def test_a_stopped_car_on_a_straight_is_passed_or_waited_behind_never_touched(
+    half_width: float,
+) -> None:
+    track = stadium(half_width_m=half_width)
+    ego = RacelinePlanner(track, PLANNER, vehicle=F1TENTH_GYM)
+    opts = HeadToHeadOptions(laps=1, gap_m=(10.0, 10.0001))
+    r = race_seed(ego, StoppedCar(PLANNER), track, SimulatorSettings(), opts, seed=0)
+    assert r.contacts == 0
+    assert r.ego_off_track == 0
+    if half_width >= 1.0:  # a 2 m wide straight: room beside it
+        assert r.overtakes == 1 and not r.aborted
+    else:  # 0.64 m: no room, the ego waits behind it
+        assert r.overtakes == 0 and r.aborted and 0.3 < r.ego_distance_m < 10.0
