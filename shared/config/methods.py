@@ -164,6 +164,10 @@ class MethodSetup:
         lifted: the lifted problem layout (``services.planner.mpc.problem``).
         speed_cap_mps: bound on the planned speed of a model with the car's speed [m/s],
             or None.
+        servo_state: a model with the car's speed holds a slow servo as a state too
+            (``services.planner.mpc.planner.model_servo``).
+        command_cap_mps: bound on the speed command of a model with the car's speed [m/s]
+            (the car's own speed within the cap), or None.
     """
 
     spec: MethodSpec
@@ -174,6 +178,8 @@ class MethodSetup:
     lead_s: float
     lifted: bool
     speed_cap_mps: float | None
+    servo_state: bool = False
+    command_cap_mps: float | None = None
 
     @property
     def has_speed_state(self) -> bool:
@@ -198,4 +204,6 @@ def method_setup(settings: PlannerSettings, name: str | None = None) -> MethodSe
     return MethodSetup(
         spec, weights, structure, solver, own.model, own.lead_pose_s, own.lifted,
         own.v_max_mps if with_speed else None,
+        with_speed and getattr(own, "servo_state", False),
+        own.v_max_mps if with_speed and getattr(own, "cap_command", False) else None,
     )
