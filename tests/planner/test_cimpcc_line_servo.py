@@ -99,7 +99,8 @@ def test_only_a_slow_servo_is_a_state_and_the_switch_turns_it_off() -> None:
     setup_off = method_setup(off, CIMPCC_LINE)
     assert model_servo(setup_off, REAL_CAR_IDENTIFIED) is None
     assert setup_off.command_cap_mps is None
-    light = UNCOMPILED.model_copy(update={"cimpcc_line": CimpccLineSettings(model="kinematic_slip")})
+    light_line = CimpccLineSettings(model="kinematic_slip")
+    light = UNCOMPILED.model_copy(update={"cimpcc_line": light_line})
     assert model_servo(method_setup(light, CIMPCC_LINE), REAL_CAR_IDENTIFIED) is None
 
 
