@@ -166,8 +166,6 @@ class MethodSetup:
             or None.
         servo_state: a model with the car's speed holds a slow servo as a state too
             (``services.planner.mpc.planner.model_servo``).
-        command_cap_mps: bound on the speed command of a model with the car's speed [m/s]
-            (the car's own speed within the cap), or None.
     """
 
     spec: MethodSpec
@@ -179,7 +177,6 @@ class MethodSetup:
     lifted: bool
     speed_cap_mps: float | None
     servo_state: bool = False
-    command_cap_mps: float | None = None
 
     @property
     def has_speed_state(self) -> bool:
@@ -205,5 +202,4 @@ def method_setup(settings: PlannerSettings, name: str | None = None) -> MethodSe
         spec, weights, structure, solver, own.model, own.lead_pose_s, own.lifted,
         own.v_max_mps if with_speed else None,
         with_speed and getattr(own, "servo_state", False),
-        own.v_max_mps if with_speed and getattr(own, "cap_command", False) else None,
     )

@@ -252,8 +252,9 @@ class CimpccLineSettings(Section):
     cap_command: bool = Field(
         True,
         description="model 'kinematic_slip_speed': the speed command too is at most "
-        "v_max_mps, so the car's measured speed keeps the cap (its speed loop never passes "
-        "its command); false: only the planned speed is bounded",
+        "v_max_mps plus what the speed loop needs against the line's tyre drag there, so the "
+        "car's measured speed keeps the cap (its speed loop never passes its command); "
+        "false: only the planned speed is bounded",
     )
     traction_fraction: float | None = Field(
         0.8, gt=0.0, le=1.0,

@@ -27,7 +27,7 @@ from services.planner.mpc.model import (
     step_numpy,
 )
 from services.planner.mpc.planner import Planner, min_time_reference, model_servo
-from services.planner.mpc.problem import NXA, UA, XA_SERVO, XA_SPEED, build_problem
+from services.planner.mpc.problem import NXA, XA_SERVO, XA_SPEED, build_problem
 from services.planner.reference import ReferencePath
 from shared.config.methods import CIMPCC_LINE, method_setup
 from shared.config.planner import CimpccLineSettings, PlannerSettings, SolverSettings
@@ -90,7 +90,7 @@ def test_with_a_servo_the_car_turns_with_the_wheels_not_with_the_target() -> Non
 
 def test_only_a_slow_servo_is_a_state_and_the_switch_turns_it_off() -> None:
     setup = method_setup(UNCOMPILED, CIMPCC_LINE)
-    assert setup.servo_state and setup.command_cap_mps == pytest.approx(4.18)
+    assert setup.servo_state
     assert model_servo(setup, F1TENTH_GYM) is None  # the gym's 0.01 s servo
     assert model_servo(setup, REAL_CAR_IDENTIFIED) == Servo.for_vehicle(REAL_CAR_IDENTIFIED)
     off = UNCOMPILED.model_copy(
@@ -98,26 +98,43 @@ def test_only_a_slow_servo_is_a_state_and_the_switch_turns_it_off() -> None:
     )
     setup_off = method_setup(off, CIMPCC_LINE)
     assert model_servo(setup_off, REAL_CAR_IDENTIFIED) is None
-    assert setup_off.command_cap_mps is None
     light_line = CimpccLineSettings(model="kinematic_slip")
     light = UNCOMPILED.model_copy(update={"cimpcc_line": light_line})
     assert model_servo(method_setup(light, CIMPCC_LINE), REAL_CAR_IDENTIFIED) is None
 
 
-def test_the_servo_problem_has_the_wheels_angle_last_and_the_command_capped(circle_line) -> None:
+def test_the_servo_problem_has_the_wheels_angle_last(circle_line) -> None:
     _, ref = circle_line
     car = REAL_CAR_IDENTIFIED
     slip, loop = SlipModel.for_vehicle(car, near_limit=True), SpeedLoop.for_vehicle(car)
-    pr = build_problem(ref, UNCOMPILED, slip, loop, 4.18, servo=Servo.for_vehicle(car),
-                       command_cap_mps=4.18)
+    pr = build_problem(ref, UNCOMPILED, slip, loop, 4.18, servo=Servo.for_vehicle(car))
     assert pr.has_servo and pr.has_speed and pr.nxa == NXA + 2
     assert pr.model_index[-2:] == (XA_SPEED, XA_SERVO)
-    assert "servo=" in pr.signature and "command_cap=4.18" in pr.signature
+    assert "servo=" in pr.signature and pr.layout.sizes["x0"] == NXA + 2
     for k in range(pr.horizon):
-        assert pr.ubw[pr.input_index(k)][UA.V_L] == pytest.approx(4.18)
         assert pr.ubw[pr.state_index(k + 1)][XA_SPEED] == pytest.approx(4.18)
     plain = build_problem(ref, UNCOMPILED, slip, loop, 4.18)
-    assert not plain.has_servo and plain.ubw[plain.input_index(0)][UA.V_L] > 4.18
+    assert not plain.has_servo and plain.signature != pr.signature
+    with pytest.raises(ValueError, match="speed loop"):
+        build_problem(ref, UNCOMPILED, slip, None, servo=Servo.for_vehicle(car))
+
+
+def test_the_speed_command_keeps_the_car_at_the_cap(circle_line) -> None:
+    """The command is capped at the cap plus the speed loop's lead for the line's drag, so
+    the car's own speed (the loop never passes its command) keeps the cap."""
+    track, ref = circle_line
+    planner = Planner(track, UNCOMPILED, reference=ref)
+    k_a = F1TENTH_GYM.speed_gain_accel_per_s
+    assert planner._command_limit(None) == pytest.approx(4.18)
+    assert planner._command_limit(np.array([1.0, 0.0])) == pytest.approx(4.18 + 1.0 / k_a)
+    assert planner._command_limit(np.array([-1.0])) == pytest.approx(4.18)
+    off = UNCOMPILED.model_copy(update={"cimpcc_line": CimpccLineSettings(cap_command=False)})
+    assert Planner(track, off, reference=ref)._command_cap is None
+    # a lap's commands stay within it
+    for k in range(8):
+        phi = 0.05 * k
+        res = planner.step(1.3 * math.cos(phi), 1.3 * math.sin(phi), phi + math.pi / 2)
+        assert res.command.speed_mps <= 4.18 + 2.5 / k_a
 
 
 def test_the_planner_estimates_the_wheels_and_steers_the_servos_target(circle_line) -> None:

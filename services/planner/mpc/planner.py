@@ -150,7 +150,7 @@ def method_problem(
         speed_loop = SpeedLoop.for_vehicle(car)
     return build_problem(
         reference, setup.structure, slip, speed_loop, setup.speed_cap_mps, lifted=setup.lifted,
-        servo=model_servo(setup, car), command_cap_mps=setup.command_cap_mps,
+        servo=model_servo(setup, car),
     )
 
 
@@ -281,6 +281,12 @@ class Planner:
         #: only on the minimum-time line, the paper's methods stay as they are; a model
         #: with the servo as a state plans the servo's target itself)
         self._servo_tau = servo_reach(car) if line and self._servo is None else None
+        #: the speed command's cap [m/s] beside the drag's lead (None: none; ``_command_cap``)
+        self._command_cap = (
+            setup.speed_cap_mps
+            if problem.has_speed and settings.cimpcc_line.cap_command
+            else None
+        )
         #: the speed command's traction budget [m/s^2] (None: no cap; ``_traction_cap``)
         frac = settings.cimpcc_line.traction_fraction
         self._traction_mps2 = (
@@ -437,6 +443,8 @@ class Planner:
             u0[U.V_L] = self._handover.cap(float(u0[U.V_L]), self.settings.dt_s)
         if self._traction_mps2 is not None:
             u0[U.V_L] = self._traction_cap(float(u0[U.V_L]), float(x0[XA_SPEED]), w)
+        if self._command_cap is not None:
+            u0[U.V_L] = min(float(u0[U.V_L]), self._command_limit(drag))
         self._u_applied = u0
         speed, limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
         self._drove = True
@@ -461,6 +469,15 @@ class Planner:
         )
 
     # ------------------------------------------------------------------ helpers
+    def _command_limit(self, drag: np.ndarray | None) -> float:
+        """The largest speed command [m/s] that keeps the car at the cap: the cap plus what
+        the speed loop needs to hold it against the reference lap's tyre drag at stage 0,
+        ``cap + drag_0 / k_a`` (the loop settles its speed at the command less the drag's
+        share; it never passes its command on a straight)."""
+        assert self._command_cap is not None and self._speed_loop is not None
+        d0 = 0.0 if drag is None else max(float(drag[0]), 0.0)
+        return self._command_cap + d0 / self._speed_loop.gain_accel_per_s
+
     def _traction_cap(self, v_cmd: float, v: float, w: np.ndarray) -> float:
         """The speed command [m/s] within the traction budget (Pacejka tyres).
 

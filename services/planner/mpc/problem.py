@@ -262,7 +262,6 @@ def build_problem(
     speed_cap_mps: float | None = None,
     lifted: bool = False,
     servo: Servo | None = None,
-    command_cap_mps: float | None = None,
 ) -> OcpProblem:
     """Build the CiMPCC/MPCC NLP on a reference path with the structure fixed by `settings`.
 
@@ -286,9 +285,6 @@ def build_problem(
             layout (the module docstring).
         servo: with `speed_loop`, the car's servo (``model.Servo``): the wheels' angle
             becomes a state (``XA_SERVO``) and ``delta`` the servo's target; None: none.
-        command_cap_mps: the speed command ``v_l`` of every stage is at most this [m/s]
-            (below ``settings.bounds``' own); with a speed loop that never passes its
-            command the car's speed then respects it too; None: the bounds alone.
     """
     if servo is not None and speed_loop is None:
         raise ValueError("a servo state needs the speed loop's state before it")
@@ -398,8 +394,6 @@ def build_problem(
         lbw[i + UA.DELTA], ubw[i + UA.DELTA] = b.delta_rad
         lbw[i + UA.V_P], ubw[i + UA.V_P] = b.v_p_mps
         lbw[i + UA.SLACK] = 0.0
-        if command_cap_mps is not None:
-            ubw[i + UA.V_L] = min(ubw[i + UA.V_L], command_cap_mps)
     if lifted:  # stage 0 constrains no position: its slack is unused
         ubw[nxa + UA.SLACK] = 0.0
     if speed and speed_cap_mps is not None:
@@ -423,7 +417,6 @@ def build_problem(
         ]
         + ([f"speed_loop={speed_loop!r},drag-param,cap={speed_cap_mps!r}"] if speed else [])
         + ([f"servo={servo!r}"] if servo is not None else [])
-        + ([f"command_cap={command_cap_mps!r}"] if command_cap_mps is not None else [])
         + (["lifted"] if lifted else [])
     )
     return OcpProblem(
