@@ -26,7 +26,13 @@ from services.planner.mpc.model import (
     kinematic_bicycle,
     step_numpy,
 )
-from services.planner.mpc.planner import Planner, min_time_reference, model_servo
+from services.planner.mpc.planner import (
+    COMMAND_CAP_FADE_MPS,
+    COMMAND_CAP_OVER_MPS,
+    Planner,
+    min_time_reference,
+    model_servo,
+)
 from services.planner.mpc.problem import NXA, XA_SERVO, XA_SPEED, build_problem
 from services.planner.reference import ReferencePath
 from shared.config.methods import CIMPCC_LINE, method_setup
@@ -125,16 +131,36 @@ def test_the_speed_command_keeps_the_car_at_the_cap(circle_line) -> None:
     track, ref = circle_line
     planner = Planner(track, UNCOMPILED, reference=ref)
     k_a = F1TENTH_GYM.speed_gain_accel_per_s
-    assert planner._command_limit(None) == pytest.approx(4.18)
-    assert planner._command_limit(np.array([1.0, 0.0])) == pytest.approx(4.18 + 1.0 / k_a)
-    assert planner._command_limit(np.array([-1.0])) == pytest.approx(4.18)
+    e = math.exp(-k_a * UNCOMPILED.dt_s)
+    # below the cap: the command that brings the car just to the cap in one period
+    reach = (4.18 - 3.0 * e) / (1.0 - e)
+    assert planner._command_limit(None, 3.0) == pytest.approx(reach)
+    drag = np.array([1.0, 0.0])
+    assert planner._command_limit(drag, 3.0) == pytest.approx(reach + 1.0 / k_a)
+    assert planner._command_limit(np.array([-1.0]), 3.0) == pytest.approx(reach)
+    v_end, _ = SpeedLoop.for_vehicle(F1TENTH_GYM).advance(3.0, reach, UNCOMPILED.dt_s)
+    assert v_end <= 4.18 + 1e-6  # the loop (smoothly clipped at a_max) gets no further
+    # near the cap the command is the cap plus the drag's lead, which fades out to above it
+    top = 4.18 + COMMAND_CAP_OVER_MPS
+    full = top - COMMAND_CAP_FADE_MPS
+    assert full < 4.18
+    assert planner._command_limit(drag, full) == pytest.approx(
+        (4.18 - full * e) / (1.0 - e) + 1.0 / k_a
+    )
+    half = top - COMMAND_CAP_FADE_MPS / 2
+    assert planner._command_limit(drag, half) == pytest.approx(
+        max(4.18, (4.18 - half * e) / (1.0 - e)) + 0.5 / k_a
+    )
+    assert planner._command_limit(drag, top) == pytest.approx(4.18)
+    assert planner._command_limit(drag, 4.3) == pytest.approx(4.18)
     off = UNCOMPILED.model_copy(update={"cimpcc_line": CimpccLineSettings(cap_command=False)})
     assert Planner(track, off, reference=ref)._command_cap is None
     # a lap's commands stay within it
     for k in range(8):
         phi = 0.05 * k
         res = planner.step(1.3 * math.cos(phi), 1.3 * math.sin(phi), phi + math.pi / 2)
-        assert res.command.speed_mps <= 4.18 + 2.5 / k_a
+        v = float(planner._v_est)
+        assert res.command.speed_mps <= max(4.18, (4.18 - v * e) / (1 - e)) + 2.5 / k_a
 
 
 def test_the_planner_estimates_the_wheels_and_steers_the_servos_target(circle_line) -> None:

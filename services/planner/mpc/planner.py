@@ -76,6 +76,12 @@ from shared.track import Track
 PROJECTION_WINDOW_M = 5.0
 #: Speed [m/s] of the rollout that seeds the very first solve.
 INITIAL_GUESS_SPEED_MPS = 1.0
+#: Below the cap, the speed over which the speed command's lead for the tyres' drag fades out
+#: [m/s] (``Planner._command_limit``).
+COMMAND_CAP_FADE_MPS = 0.05
+#: ... ending this far above the cap [m/s] (the rule counts a car over it by 1 %, 0.04 m/s
+#: at 4.18; faded out below the cap, the car kept 4.175 m/s and lost 0.7 % on map416).
+COMMAND_CAP_OVER_MPS = 0.02
 #: Half-width [m] of the search on the line around the hint from the track's progress.
 LINE_HINT_WINDOW_M = 2.0
 
@@ -444,7 +450,7 @@ class Planner:
         if self._traction_mps2 is not None:
             u0[U.V_L] = self._traction_cap(float(u0[U.V_L]), float(x0[XA_SPEED]), w)
         if self._command_cap is not None:
-            u0[U.V_L] = min(float(u0[U.V_L]), self._command_limit(drag))
+            u0[U.V_L] = min(float(u0[U.V_L]), self._command_limit(drag, float(x0[XA_SPEED])))
         self._u_applied = u0
         speed, limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
         self._drove = True
@@ -469,14 +475,27 @@ class Planner:
         )
 
     # ------------------------------------------------------------------ helpers
-    def _command_limit(self, drag: np.ndarray | None) -> float:
-        """The largest speed command [m/s] that keeps the car at the cap: the cap plus what
-        the speed loop needs to hold it against the reference lap's tyre drag at stage 0,
-        ``cap + drag_0 / k_a`` (the loop settles its speed at the command less the drag's
-        share; it never passes its command on a straight)."""
+    def _command_limit(self, drag: np.ndarray | None, v: float) -> float:
+        """The largest speed command [m/s] that keeps the car at the cap, at the car's
+        speed `v` [m/s] (the model's, stage 0, when the command acts).
+
+        Two leads over the cap ``c``: the command under which the speed loop (gain k_a)
+        brings the car from `v` just to the cap in one period Ts, ``(c - v e) / (1 - e)``
+        with ``e = exp(-k_a Ts)`` (so it still speeds up as fast as it can below the cap),
+        plus what the loop needs to hold the car against the reference lap's tyre drag at
+        stage 0, ``drag_0 / k_a``, that lead faded out over ``COMMAND_CAP_FADE_MPS`` up to
+        ``COMMAND_CAP_OVER_MPS`` above the cap (the car's own drag may be less than the
+        line's: with the whole lead it went to 4.23 m/s in map416's fast bend). At the cap
+        the command is the cap, and the loop never passes its command.
+        """
         assert self._command_cap is not None and self._speed_loop is not None
+        cap = self._command_cap
+        k_a = self._speed_loop.gain_accel_per_s
+        e = math.exp(-k_a * self.settings.dt_s)
+        reach = (cap - v * e) / (1.0 - e) if v < cap else cap
         d0 = 0.0 if drag is None else max(float(drag[0]), 0.0)
-        return self._command_cap + d0 / self._speed_loop.gain_accel_per_s
+        fade = min(max((cap + COMMAND_CAP_OVER_MPS - v) / COMMAND_CAP_FADE_MPS, 0.0), 1.0)
+        return reach + fade * d0 / k_a
 
     def _traction_cap(self, v_cmd: float, v: float, w: np.ndarray) -> float:
         """The speed command [m/s] within the traction budget (Pacejka tyres).
