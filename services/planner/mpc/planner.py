@@ -82,6 +82,9 @@ COMMAND_CAP_FADE_MPS = 0.05
 #: ... ending this far above the cap [m/s] (the rule counts a car over it by 1 %, 0.04 m/s
 #: at 4.18; faded out below the cap, the car kept 4.175 m/s and lost 0.7 % on map416).
 COMMAND_CAP_OVER_MPS = 0.02
+#: The least share of the traction budget left to the drive however hard the plan corners
+#: (``Planner._traction_cap``).
+TRACTION_FLOOR_SHARE = 0.1
 #: Half-width [m] of the search on the line around the hint from the track's progress.
 LINE_HINT_WINDOW_M = 2.0
 
@@ -503,8 +506,9 @@ class Planner:
         The plan's lateral acceleration over its first step, ``a_y = v psi'`` (``psi'``
         the heading change from stage 0 to 1 over Ts), leaves ``a_x = sqrt(A^2 - a_y^2)``
         of the budget ``A`` (``traction_fraction`` of the friction circle) to the drive
-        (at least a tenth of ``A``); the speed loop accelerates by ``k_a (v_cmd - v)``, so
-        the command is at most ``v + a_x / k_a`` [m/s] (`v`: the model's speed at stage 0).
+        (at least ``TRACTION_FLOOR_SHARE`` of ``A``); the speed loop accelerates by ``k_a
+        (v_cmd - v)``, so the command is at most ``v + a_x / k_a`` [m/s] (`v`: the model's
+        speed at stage 0).
         Braking is not capped.
         """
         assert self._traction_mps2 is not None and self._speed_loop is not None
@@ -515,7 +519,7 @@ class Planner:
         phi1 = float(w[pr.state_index(1)][XA.PHI])
         a_y = abs(v * wrap_angle(phi1 - phi0) / self.settings.dt_s)
         budget = self._traction_mps2
-        a_x = math.sqrt(max(budget**2 - a_y**2, (0.1 * budget) ** 2))
+        a_x = math.sqrt(max(budget**2 - a_y**2, (TRACTION_FLOOR_SHARE * budget) ** 2))
         return min(v_cmd, v + a_x / self._speed_loop.gain_accel_per_s)
 
     def _servo_lead(self, u0: np.ndarray, w: np.ndarray) -> float:
