@@ -251,10 +251,10 @@ class CimpccLineSettings(Section):
     )
     cap_command: bool = Field(
         True,
-        description="model 'kinematic_slip_speed': the speed command too is at most "
-        "v_max_mps plus what the speed loop needs against the line's tyre drag there, so the "
-        "car's measured speed keeps the cap (its speed loop never passes its command); "
-        "false: only the planned speed is bounded",
+        description="model 'kinematic_slip_speed': the speed command too is capped (at what "
+        "brings the car just to v_max_mps in one period, plus the speed loop's lead for the "
+        "line's tyre drag, faded out just over the cap), so the car's measured speed keeps "
+        "the cap; false: only the planned speed is bounded (the car reached 4.23 m/s)",
     )
     traction_fraction: float | None = Field(
         0.8, gt=0.0, le=1.0,
