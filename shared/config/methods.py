@@ -164,6 +164,8 @@ class MethodSetup:
         lifted: the lifted problem layout (``services.planner.mpc.problem``).
         speed_cap_mps: bound on the planned speed of a model with the car's speed [m/s],
             or None.
+        servo_state: a model with the car's speed holds a slow servo as a state too
+            (``services.planner.mpc.planner.model_servo``).
     """
 
     spec: MethodSpec
@@ -174,6 +176,7 @@ class MethodSetup:
     lead_s: float
     lifted: bool
     speed_cap_mps: float | None
+    servo_state: bool = False
 
     @property
     def has_speed_state(self) -> bool:
@@ -198,4 +201,5 @@ def method_setup(settings: PlannerSettings, name: str | None = None) -> MethodSe
     return MethodSetup(
         spec, weights, structure, solver, own.model, own.lead_pose_s, own.lifted,
         own.v_max_mps if with_speed else None,
+        with_speed and getattr(own, "servo_state", False),
     )

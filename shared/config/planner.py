@@ -249,6 +249,26 @@ class CimpccLineSettings(Section):
         "state behind its speed loop (v_l its command; the line's tyre drag per stage) "
         "(services/planner/mpc/model.py)",
     )
+    cap_command: bool = Field(
+        True,
+        description="model 'kinematic_slip_speed': the speed command too is capped (at what "
+        "brings the car just to v_max_mps in one period, plus the speed loop's lead for the "
+        "line's tyre drag, faded out just over the cap), so the car's measured speed keeps "
+        "the cap; false: only the planned speed is bounded (the car reached 4.23 m/s)",
+    )
+    traction_fraction: float | None = Field(
+        0.8, gt=0.0, le=1.0,
+        description="Pacejka tyres, model 'kinematic_slip_speed': the speed command's "
+        "acceleration is held within this share of the friction circle min_i mu_i g left "
+        "beside the plan's lateral acceleration (a friction ellipse for the drive; the rear "
+        "spins when throttle and cornering take its whole grip); None or other tyres: no cap",
+    )
+    servo_state: bool = Field(
+        True,
+        description="model 'kinematic_slip_speed' on a car with a slow servo (its reach "
+        "bounds the steering: the identified car's 0.158 s, not the gym's 0.01 s): the "
+        "wheels' angle a state behind the servo, the steering input its target",
+    )
     lead_pose_s: float = Field(
         0.05, ge=0.0, le=0.5,
         description="plan from the pose (and speed) predicted this far ahead with the acting "

@@ -38,6 +38,15 @@ and ``v`` replaces ``v_l`` in the equations above (the smooth switch settles ``v
 ``(k_b - k_a) e_s / (k_a + k_b)`` = 0.03 m/s under a held command). The tyres' drag in a
 bend (up to about 2 m/s^2 at the limit) is not in here: the problem subtracts the reference
 lap's drag at each stage (``problem.build_problem``), as a known disturbance.
+
+``Servo`` (``cimpcc-line`` on a car with a slow servo, ``mintime.model.servo_reach``) adds
+the wheels' steering angle ``delta_w`` [rad] as a further state, index ``SERVO`` (after
+``SPEED``): ``delta`` is then the servo's TARGET and the wheels follow it through the
+servo's proportional loop (``services/simulator/actuators.py``), the rate smoothly clipped
+at the servo's rate limit ``r_max``; the bicycle turns with ``delta_w``::
+
+    r        = (delta - delta_w) / tau
+    delta_w' = r / (1 + (r / r_max)^4)^(1/4)
 """
 
 from __future__ import annotations
@@ -83,6 +92,9 @@ NEAR_LIMIT_GRIP = 0.95
 NEAR_LIMIT_SAMPLES = 12
 #: Index of the car's speed in the state of a model with a ``SpeedLoop`` (5 elements).
 SPEED = NX
+#: Index of the wheels' steering angle in the state of a model with a ``Servo`` (6 elements,
+#: after ``SPEED``).
+SERVO = NX + 1
 #: Width e_s [m/s] of the smooth switch between the speed loop's two gains (a sharper one,
 #: 0.02 m/s with tanh, took 1.4 more solver iterations for the same laps).
 E_SMOOTH_MPS = 0.05
@@ -234,8 +246,47 @@ class SpeedLoop:
         return float(v), float(mean)
 
 
+@dataclass(frozen=True)
+class Servo:
+    """The car's steering servo (module docstring): a first-order lag behind its target.
+
+    Attributes:
+        time_constant_s: tau [s], ``d(delta_w)/dt = (target - delta_w) / tau``.
+        rate_max_radps: r_max [rad/s], the servo's rate limit (smoothly clipped).
+    """
+
+    time_constant_s: float
+    rate_max_radps: float
+
+    @classmethod
+    def for_vehicle(cls, vehicle: DynamicVehicleParams) -> Servo:
+        """The servo of `vehicle` (its time constant and the smaller of its rate limits)."""
+        rate = min(vehicle.steering_rate_max_radps, -vehicle.steering_rate_min_radps)
+        return cls(vehicle.steering_time_constant_s, rate)
+
+    def rate(self, target: Any, delta_w: Any) -> Any:
+        """``delta_w'`` [rad/s] towards `target` from `delta_w` [rad] (CasADi or numpy)."""
+        r = (target - delta_w) / self.time_constant_s
+        return r / (1.0 + (r / self.rate_max_radps) ** 4) ** 0.25
+
+    def advance(self, delta_w: float, target: float, dt_s: float, substeps: int = 5) -> float:
+        """The wheels' angle [rad] after holding `target` for `dt_s` [s] from `delta_w`
+        (RK4 with `substeps`)."""
+        h = dt_s / substeps
+        for _ in range(substeps):
+            k1 = self.rate(target, delta_w)
+            k2 = self.rate(target, delta_w + h / 2 * k1)
+            k3 = self.rate(target, delta_w + h / 2 * k2)
+            k4 = self.rate(target, delta_w + h * k3)
+            delta_w = delta_w + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return float(delta_w)
+
+
 def kinematic_bicycle(
-    wheelbase_m: float, slip: SlipModel | None = None, speed_loop: SpeedLoop | None = None
+    wheelbase_m: float,
+    slip: SlipModel | None = None,
+    speed_loop: SpeedLoop | None = None,
+    servo: Servo | None = None,
 ) -> ca.Function:
     """Continuous dynamics ``f(zeta, u) -> zeta_dot`` as a CasADi Function (SX inside).
 
@@ -245,34 +296,41 @@ def kinematic_bicycle(
             paper's model, eq. 12.
         speed_loop: the car's speed loop: the state gets the car's speed (index ``SPEED``)
             and ``v_l`` is its command (module docstring); None: ``v_l`` is the speed.
+        servo: the car's servo (needs `speed_loop`): the state gets the wheels' angle
+            (index ``SERVO``) and ``delta`` is the servo's target; None: ``delta`` steers.
 
     Returns:
-        Function ``f(x[4], u[3]) -> xdot[4]`` (``x[5]``, ``xdot[5]`` with `speed_loop`);
-        callable with numpy arrays too.
+        Function ``f(x[4], u[3]) -> xdot[4]`` (``x[5]``, ``xdot[5]`` with `speed_loop`,
+        ``x[6]`` with `servo` too); callable with numpy arrays too.
     """
-    x = ca.SX.sym("x", NX + (speed_loop is not None))
+    if servo is not None and speed_loop is None:
+        raise ValueError("a servo state needs the speed loop's state before it")
+    x = ca.SX.sym("x", NX + (speed_loop is not None) + (servo is not None))
     u = ca.SX.sym("u", NU)
     v = u[U.V_L] if speed_loop is None else x[SPEED]
+    delta = u[U.DELTA] if servo is None else x[SERVO]
     if slip is None or slip.is_kinematic:
         L = wheelbase_m if slip is None else slip.wheelbase_m
         xdot = ca.vertcat(
             ca.cos(x[S.PHI]) * v,
             ca.sin(x[S.PHI]) * v,
-            ca.tan(u[U.DELTA]) / L * v,
+            ca.tan(delta) / L * v,
             u[U.V_P],
         )
     else:
-        kappa = ca.tan(u[U.DELTA]) / (slip.wheelbase_m + slip.understeer_s2pm * v**2)
+        kappa = ca.tan(delta) / (slip.wheelbase_m + slip.understeer_s2pm * v**2)
         c_r = slip.rear_slip_s2pm
         if slip.understeer_growth_s6pm3 != 0.0 or slip.rear_slip_growth_s6pm3 != 0.0:
             a_y2 = (kappa * v**2) ** 2  # a_y^2 at the first estimate
             k_us = slip.understeer_s2pm + slip.understeer_growth_s6pm3 * a_y2
-            kappa = ca.tan(u[U.DELTA]) / (slip.wheelbase_m + k_us * v**2)
+            kappa = ca.tan(delta) / (slip.wheelbase_m + k_us * v**2)
             c_r = c_r + slip.rear_slip_growth_s6pm3 * a_y2
         course = x[S.PHI] - c_r * v**2 * kappa
         xdot = ca.vertcat(ca.cos(course) * v, ca.sin(course) * v, kappa * v, u[U.V_P])
     if speed_loop is not None:
         xdot = ca.vertcat(xdot, speed_loop.accel(u[U.V_L], x[SPEED]))
+    if servo is not None:
+        xdot = ca.vertcat(xdot, servo.rate(u[U.DELTA], x[SERVO]))
     return ca.Function("kinematic_bicycle", [x, u], [xdot], ["x", "u"], ["xdot"])
 
 
@@ -304,5 +362,5 @@ def discretise(f: ca.Function, dt_s: float, integrator: str = "rk4") -> ca.Funct
 
 
 def step_numpy(F: ca.Function, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Evaluate a discrete step with numpy in and out: (4,) or (5,) state, (3,) input."""
+    """Evaluate a discrete step with numpy in and out: (4,), (5,) or (6,) state, (3,) input."""
     return np.asarray(F(x, u), dtype=float).reshape(-1)

@@ -42,11 +42,11 @@ from services.planner.interface import (
     DriveCommand,
     SolveResult,
 )
-from services.planner.mintime.model import servo_reach
+from services.planner.mintime.model import friction_circle_mps2, servo_reach
 from services.planner.mintime.requests import line_request
 from services.planner.mintime.store import load_min_time_lap
-from services.planner.mpc.model import NU, NX, S, SlipModel, SpeedLoop, U, discretise
-from services.planner.mpc.problem import UA, XA, XA_SPEED, OcpProblem, build_problem
+from services.planner.mpc.model import NU, NX, S, Servo, SlipModel, SpeedLoop, U, discretise
+from services.planner.mpc.problem import UA, XA, XA_SERVO, XA_SPEED, OcpProblem, build_problem
 from services.planner.mpc.solver import SolverHandle, make_solver
 from services.planner.recovery import (
     TELEPORT_JUMP_M,
@@ -76,6 +76,15 @@ from shared.track import Track
 PROJECTION_WINDOW_M = 5.0
 #: Speed [m/s] of the rollout that seeds the very first solve.
 INITIAL_GUESS_SPEED_MPS = 1.0
+#: Below the cap, the speed over which the speed command's lead for the tyres' drag fades out
+#: [m/s] (``Planner._command_limit``).
+COMMAND_CAP_FADE_MPS = 0.05
+#: ... ending this far above the cap [m/s] (the rule counts a car over it by 1 %, 0.04 m/s
+#: at 4.18; faded out below the cap, the car kept 4.175 m/s and lost 0.7 % on map416).
+COMMAND_CAP_OVER_MPS = 0.02
+#: The least share of the traction budget left to the drive however hard the plan corners
+#: (``Planner._traction_cap``).
+TRACTION_FLOOR_SHARE = 0.1
 #: Half-width [m] of the search on the line around the hint from the track's progress.
 LINE_HINT_WINDOW_M = 2.0
 
@@ -140,7 +149,8 @@ def method_problem(
     reference: ReferencePath, setup: MethodSetup, vehicle: DynamicVehicleParams | None = None
 ) -> OcpProblem:
     """The MPC problem of a method on `reference`: its model (the paper's kinematic bicycle,
-    or with the tyre slip of `vehicle`, or also its speed loop), structure and layout."""
+    or with the tyre slip of `vehicle`, or also its speed loop, and its servo when that is
+    slow, ``model_servo``), structure and layout."""
     car = vehicle or F1TENTH_GYM
     slip = speed_loop = None
     if setup.model != "kinematic":
@@ -148,8 +158,19 @@ def method_problem(
     if setup.has_speed_state:
         speed_loop = SpeedLoop.for_vehicle(car)
     return build_problem(
-        reference, setup.structure, slip, speed_loop, setup.speed_cap_mps, lifted=setup.lifted
+        reference, setup.structure, slip, speed_loop, setup.speed_cap_mps, lifted=setup.lifted,
+        servo=model_servo(setup, car),
     )
+
+
+def model_servo(setup: MethodSetup, vehicle: DynamicVehicleParams) -> Servo | None:
+    """The servo a method's model holds as a state: `vehicle`'s, for a model with the car's
+    speed whose method asks for it (``[planner.cimpcc_line] servo_state``), when the servo is
+    slow enough for its reach to bound the steering (``mintime.model.servo_reach``: the
+    identified car's 0.158 s; the gym car's 0.01 s servo is left out); else None."""
+    if not (setup.has_speed_state and setup.servo_state) or servo_reach(vehicle) is None:
+        return None
+    return Servo.for_vehicle(vehicle)
 
 
 @dataclass
@@ -224,6 +245,8 @@ class Planner:
         self.problem = problem
         #: the car's speed loop of a model that holds the car's speed (None: no speed state)
         self._speed_loop = SpeedLoop.for_vehicle(car) if problem.has_speed else None
+        #: the car's servo of a model that holds the wheels' angle (None: no servo state)
+        self._servo = Servo.for_vehicle(car) if problem.has_servo else None
         self._model_index = np.array(problem.model_index)
         #: what the problem contours; its progress is the problem's s
         self.reference: ReferencePath = problem.reference
@@ -264,8 +287,22 @@ class Planner:
         self._ramp_start = line and ramps_from_rest(car)
         self._handover = HandOver(handover_accel_mps2(car) if line else car.accel_max_mps2)
         #: a slow servo's time constant [s] whose lag the command inverts (None: no lead;
-        #: only on the minimum-time line, the paper's methods stay as they are)
-        self._servo_tau = servo_reach(car) if line else None
+        #: only on the minimum-time line, the paper's methods stay as they are; a model
+        #: with the servo as a state plans the servo's target itself)
+        self._servo_tau = servo_reach(car) if line and self._servo is None else None
+        #: the speed command's cap [m/s] beside the drag's lead (None: none; ``_command_cap``)
+        self._command_cap = (
+            setup.speed_cap_mps
+            if problem.has_speed and settings.cimpcc_line.cap_command
+            else None
+        )
+        #: the speed command's traction budget [m/s^2] (None: no cap; ``_traction_cap``)
+        frac = settings.cimpcc_line.traction_fraction
+        self._traction_mps2 = (
+            frac * friction_circle_mps2(car)
+            if line and problem.has_speed and frac is not None and car.tyre_model == "pacejka"
+            else None
+        )
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -284,6 +321,7 @@ class Planner:
         self._drove = False  #: the last tick's command was the method's own (solved)
         self._pose_prev: tuple[float, float, float] | None = None
         self._v_est = 0.0  #: the car's estimated speed at the last pose [m/s] (speed model)
+        self._delta_est = 0.0  #: the wheels' estimated angle at the last pose [rad] (servo)
         self._last_xy: tuple[float, float] | None = None  #: the last pose's position [m]
         self.recovery.reset()
 
@@ -353,6 +391,11 @@ class Planner:
         x0[XA.V_L_PREV : XA.V_P_PREV + 1] = self._u_applied
         if self._speed_loop is not None:
             x0[XA_SPEED] = self._estimate_speed(x_m, y_m, yaw_rad)
+        if self._servo is not None:  # the wheels after a period of the last target
+            self._delta_est = self._servo.advance(
+                self._delta_est, float(self._u_applied[U.DELTA]), self.settings.dt_s
+            )
+            x0[XA_SERVO] = self._delta_est
         was_recovering = self.recovery.active
         stalled = self._stall.update(x_m, y_m, self.settings.dt_s, counts=self._drove)
         self._drove = False
@@ -407,6 +450,10 @@ class Planner:
         u0 = np.clip(w[pr.input_index(0)][:NU], self._u_lo, self._u_hi)
         if self._handover.active:  # ramp up from the car's speed after a recovery
             u0[U.V_L] = self._handover.cap(float(u0[U.V_L]), self.settings.dt_s)
+        if self._traction_mps2 is not None:
+            u0[U.V_L] = self._traction_cap(float(u0[U.V_L]), float(x0[XA_SPEED]), w)
+        if self._command_cap is not None:
+            u0[U.V_L] = min(float(u0[U.V_L]), self._command_limit(drag, float(x0[XA_SPEED])))
         self._u_applied = u0
         speed, limited = self._safe_speed(float(u0[U.V_L]), s0, e0)
         self._drove = True
@@ -431,6 +478,50 @@ class Planner:
         )
 
     # ------------------------------------------------------------------ helpers
+    def _command_limit(self, drag: np.ndarray | None, v: float) -> float:
+        """The largest speed command [m/s] that keeps the car at the cap, at the car's
+        speed `v` [m/s] (the model's, stage 0, when the command acts).
+
+        Two leads over the cap ``c``: the command under which the speed loop (gain k_a)
+        brings the car from `v` just to the cap in one period Ts, ``(c - v e) / (1 - e)``
+        with ``e = exp(-k_a Ts)`` (so it still speeds up as fast as it can below the cap),
+        plus what the loop needs to hold the car against the reference lap's tyre drag at
+        stage 0, ``drag_0 / k_a``, that lead faded out over ``COMMAND_CAP_FADE_MPS`` up to
+        ``COMMAND_CAP_OVER_MPS`` above the cap (the car's own drag may be less than the
+        line's: with the whole lead it went to 4.23 m/s in map416's fast bend). At the cap
+        the command is the cap, and the loop never passes its command.
+        """
+        assert self._command_cap is not None and self._speed_loop is not None
+        cap = self._command_cap
+        k_a = self._speed_loop.gain_accel_per_s
+        e = math.exp(-k_a * self.settings.dt_s)
+        reach = (cap - v * e) / (1.0 - e) if v < cap else cap
+        d0 = 0.0 if drag is None else max(float(drag[0]), 0.0)
+        fade = min(max((cap + COMMAND_CAP_OVER_MPS - v) / COMMAND_CAP_FADE_MPS, 0.0), 1.0)
+        return reach + fade * d0 / k_a
+
+    def _traction_cap(self, v_cmd: float, v: float, w: np.ndarray) -> float:
+        """The speed command [m/s] within the traction budget (Pacejka tyres).
+
+        The plan's lateral acceleration over its first step, ``a_y = v psi'`` (``psi'``
+        the heading change from stage 0 to 1 over Ts), leaves ``a_x = sqrt(A^2 - a_y^2)``
+        of the budget ``A`` (``traction_fraction`` of the friction circle) to the drive
+        (at least ``TRACTION_FLOOR_SHARE`` of ``A``); the speed loop accelerates by ``k_a
+        (v_cmd - v)``, so the command is at most ``v + a_x / k_a`` [m/s] (`v`: the model's
+        speed at stage 0).
+        Braking is not capped.
+        """
+        assert self._traction_mps2 is not None and self._speed_loop is not None
+        if v_cmd <= v:
+            return v_cmd
+        pr = self.problem
+        phi0 = float(w[pr.state_index(0)][XA.PHI])
+        phi1 = float(w[pr.state_index(1)][XA.PHI])
+        a_y = abs(v * wrap_angle(phi1 - phi0) / self.settings.dt_s)
+        budget = self._traction_mps2
+        a_x = math.sqrt(max(budget**2 - a_y**2, (TRACTION_FLOOR_SHARE * budget) ** 2))
+        return min(v_cmd, v + a_x / self._speed_loop.gain_accel_per_s)
+
     def _servo_lead(self, u0: np.ndarray, w: np.ndarray) -> float:
         """The steering command [rad]: the plan's first steering, led by a slow servo's lag.
 
@@ -455,6 +546,7 @@ class Planner:
         self._prepared = None
         self._pose_prev = None
         self._v_est = 0.0
+        self._delta_est = 0.0
         self._u_applied = np.zeros(NU)
         self._failures = 0
         self._stall.reset()

@@ -11,7 +11,9 @@ With the car's speed loop in the model (``model.SpeedLoop``, ``cimpcc-line``) th
 state gets the car's speed ``v`` last (index ``XA_SPEED``; ``v_l`` is then its command), and
 the velocity pull R3 weighs the speed the stage reaches, ``v_{k+1}``, instead of ``v_l,k``;
 a per-stage parameter ``drag_k`` [m/s^2] (the reference lap's tyre drag at stage k) slows
-it: ``v_{k+1} = F(...)_v - Ts drag_k``.
+it: ``v_{k+1} = F(...)_v - Ts drag_k``. With the car's servo in the model too
+(``model.Servo``: a slow servo) the wheels' steering angle follows it (index ``XA_SERVO``;
+``delta`` is then the servo's target).
 
 Constraints, in order: gap 0, the initial-state equality, path constraints of stage 0, then
 gap k and path constraints of stage k for k = 1..N-1. The path constraints keep the NEXT
@@ -50,6 +52,7 @@ from services.planner.mpc.model import (
     NX,
     SPEED,
     S,
+    Servo,
     SlipModel,
     SpeedLoop,
     U,
@@ -92,6 +95,8 @@ NXA = len(XA)
 NUA = len(UA)
 #: Index of the car's speed in the augmented state of a problem with a speed loop (last).
 XA_SPEED = NXA
+#: Index of the wheels' steering angle in the augmented state of a problem with a servo.
+XA_SERVO = NXA + 1
 #: Elements of the velocity pair ``v = [v_l, v_p]`` (paper eq. 11).
 NV = 2
 
@@ -193,8 +198,9 @@ class OcpProblem:
         errors: ``errors(x[4]) -> [e_con, e_lag]`` against the reference.
         signature: text that identifies the structure (for the compile cache key).
         reference: the path the problem contours (its progress ``s`` is the state's).
-        nxa: size of the augmented state (``NXA``, or ``NXA + 1`` with the car's speed).
-        model_index: where the model's state (4 or 5) sits in the augmented state.
+        nxa: size of the augmented state (``NXA``, ``NXA + 1`` with the car's speed,
+            ``NXA + 2`` with its servo too).
+        model_index: where the model's state (4, 5 or 6) sits in the augmented state.
     """
 
     nlp: dict
@@ -218,6 +224,11 @@ class OcpProblem:
     def has_speed(self) -> bool:
         """Whether the model holds the car's speed (a speed loop, ``XA_SPEED``)."""
         return self.nxa > NXA
+
+    @property
+    def has_servo(self) -> bool:
+        """Whether the model holds the wheels' steering angle (a servo, ``XA_SERVO``)."""
+        return self.nxa > XA_SERVO
 
     def state_index(self, k: int) -> slice:
         """Slice of xa_k in w."""
@@ -250,6 +261,7 @@ def build_problem(
     speed_loop: SpeedLoop | None = None,
     speed_cap_mps: float | None = None,
     lifted: bool = False,
+    servo: Servo | None = None,
 ) -> OcpProblem:
     """Build the CiMPCC/MPCC NLP on a reference path with the structure fixed by `settings`.
 
@@ -271,14 +283,22 @@ def build_problem(
             stage once instead of three times (the solver's Hessian is half the size). The
             track-limit slack of stage 0 is then unused (bounded to 0). False: the paper's
             layout (the module docstring).
+        servo: with `speed_loop`, the car's servo (``model.Servo``): the wheels' angle
+            becomes a state (``XA_SERVO``) and ``delta`` the servo's target; None: none.
     """
+    if servo is not None and speed_loop is None:
+        raise ValueError("a servo state needs the speed loop's state before it")
     path = reference if isinstance(reference, ReferencePath) else centreline_path(reference)
     N = settings.horizon_steps
-    f = kinematic_bicycle(settings.wheelbase_m, slip, speed_loop)
+    f = kinematic_bicycle(settings.wheelbase_m, slip, speed_loop, servo)
     F = discretise(f, settings.dt_s, settings.integrator)
     ref = reference_lookup(path.path)
     speed = speed_loop is not None
-    nxa = NXA + speed
+    nxa = NXA + speed + (servo is not None)
+    #: the model's state inside the augmented one
+    model_index = tuple(range(NX)) + ((XA_SPEED,) if speed else ()) + (
+        (XA_SERVO,) if servo is not None else ()
+    )
     layout = ParamLayout(N, nxa)
     p = ca.SX.sym("p", layout.size)
     par = layout.split(p)
@@ -291,12 +311,14 @@ def build_problem(
     for k in range(N):
         xk, uk = xs[k], us[k]
         w_parts += [xk, uk]
-        zeta = ca.vertcat(xk[:NX], xk[XA_SPEED]) if speed else xk[:NX]
+        zeta = ca.vertcat(*[xk[i] for i in model_index])
         u_model = uk[:NU]
         zeta_next = F(zeta, u_model)
         if speed:  # the known drag of stage k slows the car over the step
             zeta_next[SPEED] -= settings.dt_s * par["drag"][k]
-            gap = xs[k + 1] - ca.vertcat(zeta_next[:NX], u_model, zeta_next[SPEED])
+            gap = xs[k + 1] - ca.vertcat(
+                zeta_next[:NX], u_model, zeta_next[SPEED : SPEED + 1 + (servo is not None)]
+            )
         else:
             gap = xs[k + 1] - ca.vertcat(zeta_next, u_model)
         g.append(gap)
@@ -394,6 +416,7 @@ def build_problem(
             f"track={track_fingerprint(path.path)}",
         ]
         + ([f"speed_loop={speed_loop!r},drag-param,cap={speed_cap_mps!r}"] if speed else [])
+        + ([f"servo={servo!r}"] if servo is not None else [])
         + (["lifted"] if lifted else [])
     )
     return OcpProblem(
@@ -412,7 +435,7 @@ def build_problem(
         signature=signature,
         reference=path,
         nxa=nxa,
-        model_index=tuple(range(NX)) + ((XA_SPEED,) if speed else ()),
+        model_index=model_index,
     )
 
 
