@@ -158,9 +158,9 @@ class BridgeService(Service):
             if self.lidar is not None:
                 self.lidar.imu(msg.yaw_rate_radps)
 
-    def on_pose(self, pose: Pose) -> None:
+    def on_pose(self, pose: Pose, output: bool = True) -> None:
         """An external pose into the filter; with ``state_output = "on_pose"`` the state it
-        gives goes out at once."""
+        gives goes out at once (`output` False: fused only, a newer pose is queued)."""
         now = self.wall_clock()
         with self._lock:
             teleported = self.core.teleport_stamp_s
@@ -169,7 +169,7 @@ class BridgeService(Service):
                 self.newest_pose = pose
             verdict = self.core.pose(pose.stamp_s, pose.x_m, pose.y_m, pose.yaw_rad, pose.cov,
                                      now)
-            if not self.on_pose_output:
+            if not (self.on_pose_output and output):
                 return
             if self.settings.filter == "passthrough":
                 state = self.passthrough.on_pose(pose, now) if fresh else None
@@ -245,11 +245,20 @@ class BridgeService(Service):
             self.published += 1
 
     def receive(self) -> None:
-        """The input worker: every pose (or scan) as it arrives, until the bus closes."""
-        handle = self.on_scan if self.lidar is not None else self.on_pose
+        """The input worker: every pose (or scan) as it arrives, until the bus closes.
+
+        Poses queued behind the one received (the worker was late: ``pose_queue`` > 1) are
+        all fused, in order, and only the newest one's state goes out: every valid pose
+        reaches the filter, and the planner is not handed an older state first."""
         first = True
         while (msg := self.inputs.recv()) is not None:
-            handle(msg)
+            if self.lidar is not None:
+                self.on_scan(msg)
+            else:
+                while (newer := self.inputs.try_recv()) is not None:
+                    self.on_pose(msg, output=False)
+                    msg = newer
+                self.on_pose(msg)
             if first:
                 self.log.info("first input on %s", self.inputs.key)
                 first = False
