@@ -351,7 +351,23 @@ class BridgeService(Service):
         self.start_worker("bridge-state", lambda: self.publish_loop(stop), stop, fault_key=key)
         self.log.info("ready (%s pose); waiting for %s", self.settings.pose_source,
                       self.inputs.key)
-        return super().serve(stop)
+        code = super().serve(stop)
+        self.log.info("stopping: %s", self.input_summary())
+        return code
+
+    def input_summary(self) -> str:
+        """One line of what became of the inputs: the pose (or scan) channel's counts, when
+        the bus keeps them (valid records taken, valid ones lost (overwritten, stale),
+        garbage rejected), and the filter's counts by verdict."""
+        stats = getattr(self.inputs, "stats", None)
+        line = ""
+        if stats is not None:
+            st = stats()
+            line = (f"{self.inputs.key}: {st.valid} valid taken, {st.dropped} valid lost "
+                    f"({st.overwritten} overwritten, {st.stale} stale), {st.rejected} "
+                    "rejected; ")
+        counts = ", ".join(f"{k} {v}" for k, v in sorted(self.counts().items()))
+        return line + f"filter: {counts or 'nothing'}"
 
 
 main = BridgeService.main

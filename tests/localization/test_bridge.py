@@ -141,6 +141,13 @@ def test_poses_queued_behind_a_late_worker_are_all_fused_and_only_the_newest_is_
     assert [s.source_stamp_s for s in states] == pytest.approx([999.99, 1000.05])
 
 
+def test_the_closing_summary_names_the_filter_counts() -> None:
+    bus = FakeBus()
+    svc = BridgeService(bus, LocalizationSettings())
+    svc.on_pose(Pose(stamp_s=time.time(), x_m=1.0, y_m=2.0, yaw_rad=0.0))
+    assert "pose_initialised 1" in svc.input_summary()  # the fake channel keeps no stats
+
+
 def test_a_state_older_than_the_one_already_sent_is_dropped_and_counted() -> None:
     """The pose path and the fallback worker both publish: a state computed before the other
     thread's but sent after it would take the planner back in time."""
