@@ -99,16 +99,16 @@ PF_LOST = re.compile(r"rejected inputs: .*?\bpf_lost (\d+)")
 
 def soak_config(
     path: Path, port: int, track: str, segment_s: float, lidar_hz: float,
-    pose_source: str = "external",
+    pose_source: str = "external", extra: str = "",
 ) -> Path:
     """A TOML of the soak: its own car name and hub port, the track, the segment length,
-    the simulated lidar's rate [Hz], the bridge's pose source."""
+    the simulated lidar's rate [Hz], the bridge's pose source, then `extra` (TOML)."""
     path.write_text(
         f'[track]\nsource = "{track}"\n\n'
         f'[bus]\ncar = "soak{port}"\nlisten = ["tcp/127.0.0.1:{port}"]\n\n'
         f"[telemetry]\nsegment_interval_s = {segment_s}\n\n"
         f'[localization]\npose_source = "{pose_source}"\n\n'
-        f"[simulator.lidar]\nrate_hz = {lidar_hz}\n",
+        f"[simulator.lidar]\nrate_hz = {lidar_hz}\n\n{extra}",
         encoding="utf-8",
     )
     return path
@@ -262,7 +262,7 @@ def run(args: argparse.Namespace) -> int:
     port = free_loopback_port()
     lidar_hz = args.lidar_hz or (40.0 if args.pose_source == "lidar" else 10.0)
     toml = soak_config(out / "soak.toml", port, args.track, args.segment_s, lidar_hz,
-                       args.pose_source)
+                       args.pose_source, args.config_extra.replace("\\n", "\n"))
     run_dir = out / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
     for name in ("XDG_CONFIG_HOME", "XDG_DATA_HOME"):  # rerun's analytics stay off and here
@@ -424,6 +424,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--viewer", action="store_true",
                     help="up --serve and a headless Rerun viewer connected to it "
                          "(default: off)")
+    ap.add_argument("--config-extra", default="",
+                    help="TOML appended to the run's configuration, e.g. "
+                         "'[processes.simulator]\\nrealtime_priority = 10' (default: none)")
     ap.add_argument("--out", help="folder for the run, its log and soak.json (default: temp)")
     return run(ap.parse_args(argv))
 
