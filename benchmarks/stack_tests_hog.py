@@ -23,6 +23,7 @@ import re
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -33,8 +34,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: What marks a test file as a stack test (issue 25: ``grep -rl "Supervisor\\|racestack
 #: up\\|Popen" tests``).
 STACK_TEST = re.compile(r"Supervisor|racestack up|Popen")
-#: pytest's closing summary: ``== 3 passed, 1 skipped in 12.3s ==``.
-SUMMARY = re.compile(r"^=+ (.+ in [\d.]+s.*?) =+$", re.MULTILINE)
+#: pytest's closing summary (``-q``: ``1 failed, 2 passed in 257.15s (0:04:17)``).
+SUMMARY = re.compile(r"^=*\s*(\d+ (?:passed|failed|error).* in [\d.]+s.*?)\s*=*$", re.MULTILINE)
 
 
 def stack_test_files(tests: Path) -> list[Path]:
@@ -43,8 +44,11 @@ def stack_test_files(tests: Path) -> list[Path]:
                   if STACK_TEST.search(p.read_text(encoding="utf-8", errors="replace")))
 
 
-def run_round(files: list[Path], timeout_s: float, env: dict[str, str]) -> tuple[bool, str, float]:
-    """One pytest run of `files`: (passed, its summary line, wall time [s])."""
+def run_round(
+    files: list[Path], timeout_s: float, env: dict[str, str], log: Path | None = None
+) -> tuple[bool, str, float]:
+    """One pytest run of `files`: (passed, its summary line, wall time [s]); its whole
+    output goes to `log` when given."""
     t0 = time.monotonic()
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
            *[str(f) for f in files]]
@@ -53,6 +57,8 @@ def run_round(files: list[Path], timeout_s: float, env: dict[str, str]) -> tuple
                              timeout=timeout_s)
     except subprocess.TimeoutExpired:
         return False, f"timed out after {timeout_s:g} s", time.monotonic() - t0
+    if log is not None:
+        log.write_text(res.stdout + res.stderr, encoding="utf-8")
     found = SUMMARY.findall(res.stdout)
     summary = found[-1] if found else (res.stdout or res.stderr).strip()[-200:]
     failed = [line for line in res.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]
@@ -69,6 +75,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="test files to run (default: the stack tests found under tests/)")
     ap.add_argument("--no-hog", action="store_true",
                     help="no CPU hog (default: a busy loop pinned to the last CPU)")
+    ap.add_argument("--out", default=None,
+                    help="folder for each round's pytest output, round-K.txt (default: a "
+                         "temp folder)")
     ap.add_argument("--timeout-s", type=float, default=3600.0,
                     help="longest round before it counts as failed [s] (default 3600)")
     args = ap.parse_args(argv)
@@ -82,11 +91,14 @@ def main(argv: list[str] | None = None) -> int:
           flush=True)
     for f in files:
         print(f"  {f.relative_to(ROOT) if f.is_absolute() else f}")
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="racestack-tests-"))
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"  each round's output: {out}/round-K.txt", flush=True)
     hog = None if args.no_hog else start_hog(hog_cpu())
     results: list[tuple[bool, float]] = []
     try:
         for k in range(1, args.rounds + 1):
-            ok, summary, wall = run_round(files, args.timeout_s, env)
+            ok, summary, wall = run_round(files, args.timeout_s, env, out / f"round-{k}.txt")
             results.append((ok, wall))
             print(f"round {k}: {'PASS' if ok else 'FAIL'} in {wall:.0f} s ({summary}); "
                   f"load average {load_average()}", flush=True)
