@@ -1,16 +1,15 @@
-"""Soak: race the whole stack for a long time and watch every process's memory (issue 15).
+"""Soak: race the whole stack for a long time, watch memory and every real-time miss (15, 25).
 
 Starts ``racestack up`` (the launcher with its router, the simulator, the localization
 bridge, the planner and the telemetry, one process each, as a user would) on a built-in
 track with more laps than fit in the time, on its own car name and a free loopback port, so
 it never meets another stack on this machine, and its simulated lidar at ``--lidar-hz``
-(10 Hz; the simulator does not skip ahead when it falls behind real time, and on a loaded
-2-core machine at 20 Hz it fell behind until the bridge rejected every pose as stale and the
-planner braked for good). Every ``--sample-s`` it reads, with psutil,
-the resident set size of each process the launcher started (found as its children by their
-``-m services.<name>`` command line) and of the launcher itself, and the size of the
-recording's segments on disk. After ``--minutes`` it stops the stack with SIGINT (the
-launcher stops its children; the recording closes its last segment) and prints:
+(default 10 Hz; 40 Hz with ``--pose-source lidar``, the particle filter's rate). Every
+``--sample-s`` it reads, with psutil, the resident set size of each process the launcher
+started (found as its children by their ``-m services.<name>`` command line) and of the
+launcher itself, and the size of the recording's segments on disk. After ``--minutes`` it
+stops the stack with SIGINT (the launcher stops its children; the recording closes its last
+segment) and prints:
 
 * per process: RSS at ``--warmup-min`` (5 min), at the end (each the largest sample of one
   segment length: the telemetry's RSS is a saw-tooth, rising within a segment and falling
@@ -18,12 +17,37 @@ launcher stops its children; the recording closes its last segment) and prints:
   acceptance: <= 10 % for every process);
 * the recording: total size, segments, and its growth per minute after the warm-up
   (least-squares slope of size over time) [MB/min];
-* that every closed segment verifies (``rerun rrd verify``), with the count.
+* that every closed segment verifies (``rerun rrd verify``), with the count;
+* the real-time misses of issue 25, read from the services' logs (``RUN/logs/*.log``):
+  stale-state brakes of the planner (its "stale or invalid state (age N ms): braking" lines,
+  one per braking episode, with their ages), "localisation invalid" reports of the bridge
+  (rate-limited by the bridge to one line per ``EVENT_INTERVAL_S``: a lower bound), the
+  simulator's slowdowns of its world (its closing line: count, seconds, longest, the
+  world's rate; an older simulator's skips ahead), off-track events
+  (the simulator's "off track at s = ..." lines), the laps, and ``pf_lost`` of the lidar
+  filter; then one PASS/FAIL line per acceptance figure: 0 stale brakes, 0 off-track, 0
+  skips (a slowdown counts as one: it is the same lost real time), flat memory (growth
+  <= 10 %).
 
-    .venv/bin/python -m benchmarks.soak --minutes 30            # the acceptance run
+Options of issue 25's acceptance runs:
+
+* ``--hog``: a busy loop pinned to the last CPU (``benchmarks/hog.py``, as
+  ``benchmarks/stack_latency.py``), started by PID once the stack races and stopped by PID
+  at the end;
+* ``--pose-source lidar``: ``[localization] pose_source = "lidar"`` (the bridge's particle
+  filter on the simulated scans; ``--track`` then needs an occupancy map, e.g. map416);
+* ``--viewer``: ``up --serve PORT`` and a headless Rerun viewer (``rerun --headless``,
+  ``benchmarks/telemetry_load.HeadlessViewer``) connected to it; its time cursor's lag
+  behind the wall clock is sampled once a second and printed (median / p99 / max). Where
+  the viewer cannot start headless (no Vulkan driver) the soak says so and stops.
+
+    .venv/bin/python -m benchmarks.soak --minutes 30 --hog         # the acceptance run
+    .venv/bin/python -m benchmarks.soak --minutes 10 --hog --pose-source lidar \
+        --track ../shared/tracks/map416
+    .venv/bin/python -m benchmarks.soak --minutes 5 --hog --viewer
     .venv/bin/python -m benchmarks.soak --minutes 2 --warmup-min 0.5   # a quick look
 
-The samples are written to ``<out>/soak.json`` (``--out``, default a temp folder).
+The samples and counts are written to ``<out>/soak.json`` (``--out``, default a temp folder).
 """
 
 from __future__ import annotations
@@ -43,7 +67,9 @@ from typing import Any
 import numpy as np
 import psutil
 
+from benchmarks.hog import hog_cpu, load_average, start_hog
 from services.telemetry.rrd_files import find_segments
+from services.tools.launcher.supervisor import stop_process
 from shared.net import free_loopback_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,19 +80,89 @@ GROWTH_LIMIT_PCT = 10.0
 MB = 1e6
 #: A completed lap in the launcher's output: ``lap 3: 13.270 s, ...``.
 LAP_LINE = re.compile(r"^lap \d+: [\d.]+ s", re.MULTILINE)
+#: The planner's stale-state brake (one line per braking episode).
+STALE_LINE = re.compile(r"stale or invalid state \(age (\d+) ms\): braking")
+#: The bridge's "localisation invalid" report.
+INVALID_LINE = re.compile(r"localisation invalid")
+#: The simulator's off-track report.
+OFF_TRACK_LINE = re.compile(r"off track at s = ")
+#: The simulator's closing line: its slowdowns of the world and the world's rate.
+SIM_CLOSE_LINE = re.compile(
+    r"stopping \((\d+) real-time overruns, (\d+) slowdowns of the world \(([\d.]+) s, "
+    r"longest ([\d.]+) s; the world ran at ([\d.]+) of real time\)")
+#: The same of a simulator before issue 25's change (it skipped ahead instead).
+OLD_SIM_CLOSE_LINE = re.compile(r"stopping \((\d+) real-time overruns, (\d+) skips ahead "
+                                r"\(([\d.]+) s\)")
+#: An increment of the bridge's rejection counts: ``pf_lost 3``.
+PF_LOST = re.compile(r"rejected inputs: .*?\bpf_lost (\d+)")
 
 
-def soak_config(path: Path, port: int, track: str, segment_s: float, lidar_hz: float) -> Path:
+def soak_config(
+    path: Path, port: int, track: str, segment_s: float, lidar_hz: float,
+    pose_source: str = "external", extra: str = "",
+) -> Path:
     """A TOML of the soak: its own car name and hub port, the track, the segment length,
-    the simulated lidar's rate."""
+    the simulated lidar's rate [Hz], the bridge's pose source, then `extra` (TOML)."""
     path.write_text(
         f'[track]\nsource = "{track}"\n\n'
         f'[bus]\ncar = "soak{port}"\nlisten = ["tcp/127.0.0.1:{port}"]\n\n'
         f"[telemetry]\nsegment_interval_s = {segment_s}\n\n"
-        f"[simulator.lidar]\nrate_hz = {lidar_hz}\n",
+        f'[localization]\npose_source = "{pose_source}"\n\n'
+        f"[simulator.lidar]\nrate_hz = {lidar_hz}\n\n{extra}",
         encoding="utf-8",
     )
     return path
+
+
+def misses(logs: dict[str, str], up_log: str) -> dict[str, Any]:
+    """The real-time misses of a race from the services' logs (name -> text) and the
+    launcher's output: stale brakes (count, ages [ms]), localisation-invalid reports,
+    simulator overruns / skips / slowdowns (with seconds; None without its closing line),
+    off-track events, laps and pf_lost."""
+    ages = [int(a) for a in STALE_LINE.findall(logs.get("planner", ""))]
+    sim = logs.get("simulator", "")
+    close = SIM_CLOSE_LINE.findall(sim)
+    out: dict[str, Any] = {
+        "stale_brakes": len(ages), "stale_ages_ms": ages,
+        "localisation_invalid": len(INVALID_LINE.findall(logs.get("localization_bridge", ""))),
+        "off_track": len(OFF_TRACK_LINE.findall(sim)),
+        "laps": len(LAP_LINE.findall(up_log)),
+        "pf_lost": sum(int(n) for n in PF_LOST.findall(logs.get("localization_bridge", ""))),
+        "overruns": None, "skips": None, "skipped_s": None, "slowdowns": None,
+        "slowed_s": None, "longest_slowdown_s": None, "world_rate": None,
+    }
+    if close:
+        over, slow, slowed, longest, rate = close[-1]
+        out.update(overruns=int(over), skips=0, skipped_s=0.0, slowdowns=int(slow),
+                   slowed_s=float(slowed), longest_slowdown_s=float(longest),
+                   world_rate=float(rate))
+    elif old := OLD_SIM_CLOSE_LINE.findall(sim):
+        over, skips, skipped = old[-1]
+        out.update(overruns=int(over), skips=int(skips), skipped_s=float(skipped),
+                   slowdowns=0, slowed_s=0.0)
+    return out
+
+
+def read_logs(log_dir: Path) -> dict[str, str]:
+    """Each service's log in `log_dir` (``<name>.log``) as text, by name."""
+    if not log_dir.is_dir():
+        return {}
+    return {f.stem: f.read_text(errors="replace") for f in sorted(log_dir.glob("*.log"))}
+
+
+def verdicts(m: dict[str, Any], worst_growth_pct: float, memory_ok: bool) -> list[str]:
+    """One PASS/FAIL line per acceptance figure of issue 25."""
+    def line(name: str, ok: bool, got: str) -> str:
+        return f"{'PASS' if ok else 'FAIL'}  {name}: {got}"
+    skips = None if m["skips"] is None else m["skips"] + m["slowdowns"]
+    return [
+        line("0 stale-state brakes", m["stale_brakes"] == 0, f"{m['stale_brakes']}"),
+        line("0 off-track", m["off_track"] == 0, f"{m['off_track']}"),
+        line("0 simulator skips or slowdowns of its world", skips == 0,
+             "no closing line of the simulator" if skips is None
+             else f"{m['skips']} skips, {m['slowdowns']} slowdowns"),
+        line("flat memory (growth <= 10 %)", memory_ok, f"largest {worst_growth_pct:.1f} %"),
+    ]
 
 
 def service_of(proc: psutil.Process) -> str | None:
@@ -164,7 +260,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="racestack-soak-"))
     out.mkdir(parents=True, exist_ok=True)
     port = free_loopback_port()
-    toml = soak_config(out / "soak.toml", port, args.track, args.segment_s, args.lidar_hz)
+    lidar_hz = args.lidar_hz or (40.0 if args.pose_source == "lidar" else 10.0)
+    toml = soak_config(out / "soak.toml", port, args.track, args.segment_s, lidar_hz,
+                       args.pose_source, args.config_extra.replace("\\n", "\n"))
     run_dir = out / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
     for name in ("XDG_CONFIG_HOME", "XDG_DATA_HOME"):  # rerun's analytics stay off and here
@@ -175,9 +273,16 @@ def run(args: argparse.Namespace) -> int:
     log_path = out / "up.log"
     cmd = [sys.executable, "-m", "services.tools.cli", "up", "--config", str(toml),
            "--laps", str(args.laps), "--run-dir", str(run_dir)]
-    print(f"soak: {args.minutes:g} min on {args.track}; {' '.join(cmd)}; log {log_path}",
-          flush=True)
+    serve = free_loopback_port() if args.viewer else None
+    if serve is not None:
+        cmd += ["--serve", str(serve)]
+    print(f"soak: {args.minutes:g} min on {args.track}, pose source {args.pose_source}, "
+          f"lidar {lidar_hz:g} Hz, hog {'on' if args.hog else 'off'}, viewer "
+          f"{'on' if args.viewer else 'off'}; {' '.join(cmd)}; log {log_path}", flush=True)
     samples: list[dict[str, Any]] = []
+    hog = viewer = None
+    lags: list[float] = []
+    load0 = load_average()
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(cmd, cwd=str(ROOT), env=env, stdout=log,
                                 stderr=subprocess.STDOUT)
@@ -189,6 +294,22 @@ def run(args: argparse.Namespace) -> int:
                     print(f"soak: the stack did not start; see {log_path}", file=sys.stderr)
                     return 1
                 time.sleep(1.0)
+            if args.hog:
+                hog = start_hog(hog_cpu())
+                print(f"soak: hog (pid {hog.pid}) pinned to CPU {hog_cpu()}", flush=True)
+            if serve is not None:
+                from benchmarks.telemetry_load import HeadlessViewer
+
+                try:
+                    viewer = HeadlessViewer(out)
+                except (RuntimeError, OSError) as exc:
+                    print(f"soak: --viewer: {exc}; a headless Rerun viewer cannot run here",
+                          file=sys.stderr)
+                    return 1
+                viewer.open(f"rerun+http://127.0.0.1:{serve}/proxy", settle_s=0.0)
+                viewer.sample_lag()
+                print(f"soak: headless Rerun viewer (pid {viewer.proc.pid}) connected to "
+                      f"127.0.0.1:{serve}", flush=True)
             t0 = time.monotonic()
             end = t0 + args.minutes * 60.0
             next_sample = t0
@@ -212,6 +333,10 @@ def run(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             print("soak: interrupted; the figures below cover what was sampled", flush=True)
         finally:
+            if viewer is not None:
+                lags = viewer.stop()
+            if hog is not None:
+                stop_process(hog, grace_s=2.0)
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
                 try:
@@ -224,7 +349,8 @@ def run(args: argparse.Namespace) -> int:
     rate = slope_mb_per_min(samples, warmup_s)
     files = find_segments(run_dir) if run_dir.is_dir() else []
     ok, bad = verify(files, env)
-    laps = len(LAP_LINE.findall(log_path.read_text(errors="replace")))
+    m = misses(read_logs(run_dir / "logs"), log_path.read_text(errors="replace"))
+    laps = m["laps"]
     duration = samples[-1]["t_s"] / 60.0 if samples else 0.0
     print(f"\nsoak: {duration:.1f} min of racing, {laps} laps, {len(samples)} samples "
           f"every {args.sample_s:g} s; growth from t = {args.warmup_min:g} min to the end")
@@ -240,11 +366,36 @@ def run(args: argparse.Namespace) -> int:
     for line in bad:
         print(f"  not verified: {line}")
     worst = max((r["growth_pct"] for r in table), default=float("nan"))
-    passed = bool(table) and worst <= GROWTH_LIMIT_PCT and not bad
-    print(f"largest growth {worst:.1f} % (limit {GROWTH_LIMIT_PCT:g} %): "
-          f"{'PASS' if passed else 'FAIL'}")
+    memory_ok = bool(table) and worst <= GROWTH_LIMIT_PCT and not bad
+    ages = m["stale_ages_ms"]
+    print(f"load average {load0} at the start, {load_average()} at the end")
+    print(f"stale-state brakes (planner): {m['stale_brakes']}"
+          + (f", ages {min(ages)}-{max(ages)} ms (median {np.median(ages):.0f})" if ages else ""))
+    print(f"localisation-invalid reports (bridge, rate-limited): {m['localisation_invalid']}")
+    if args.pose_source == "lidar":
+        print(f"pf_lost (bridge's lidar filter): {m['pf_lost']}")
+    if m["skips"] is None:
+        print("simulator: no closing line in its log (did it stop cleanly?)")
+    else:
+        rate = "" if m["world_rate"] is None else (
+            f", longest {m['longest_slowdown_s']:.3f} s; the world ran at "
+            f"{m['world_rate']:.3f} of real time")
+        print(f"simulator: {m['overruns']} real-time overruns, {m['skips']} skips ahead "
+              f"({m['skipped_s']:.2f} s), {m['slowdowns']} slowdowns of its world "
+              f"({m['slowed_s']:.2f} s{rate})")
+    print(f"off-track events: {m['off_track']}; laps: {laps}")
+    if serve is not None:
+        lag = np.asarray(lags, dtype=float)
+        print("viewer lag behind the wall clock [s]: " + (
+            f"median {np.median(lag):.2f}, p99 {np.percentile(lag, 99):.2f}, max "
+            f"{lag.max():.2f} ({lag.size} samples)" if lag.size else "no samples"))
+    checks = verdicts(m, worst, memory_ok)
+    for line in checks:
+        print(line)
+    passed = all(line.startswith("PASS") for line in checks)
     (out / "soak.json").write_text(json.dumps({
-        "minutes": duration, "laps": laps, "sample_s": args.sample_s,
+        "minutes": duration, "laps": laps, "sample_s": args.sample_s, "misses": m,
+        "hog": args.hog, "pose_source": args.pose_source, "viewer_lag_s": lags,
         "warmup_min": args.warmup_min, "table": table, "recording_mb_per_min": rate,
         "recording_bytes": size, "segments": nseg, "verified": ok, "not_verified": bad,
         "samples": samples}, indent=1) + "\n", encoding="utf-8")
@@ -263,10 +414,19 @@ def main(argv: list[str] | None = None) -> int:
                     help="laps asked of racestack up (more than fit: the time ends the soak)")
     ap.add_argument("--segment-s", type=float, default=60.0,
                     help="[telemetry] segment_interval_s of the run [s]")
-    ap.add_argument("--lidar-hz", type=float, default=10.0,
-                    help="[simulator.lidar] rate_hz: the simulated lidar is the costliest part "
-                         "of the simulator; 10 Hz (the default is 20) keeps it in real time "
-                         "on a loaded 2-core machine")
+    ap.add_argument("--lidar-hz", type=float, default=None,
+                    help="[simulator.lidar] rate_hz (default: 10 Hz, 40 Hz with "
+                         "--pose-source lidar)")
+    ap.add_argument("--hog", action="store_true",
+                    help="a busy loop pinned to the last CPU while racing (default: off)")
+    ap.add_argument("--pose-source", choices=("external", "lidar"), default="external",
+                    help="[localization] pose_source (default: external)")
+    ap.add_argument("--viewer", action="store_true",
+                    help="up --serve and a headless Rerun viewer connected to it "
+                         "(default: off)")
+    ap.add_argument("--config-extra", default="",
+                    help="TOML appended to the run's configuration, e.g. "
+                         "'[processes.simulator]\\nrealtime_priority = 10' (default: none)")
     ap.add_argument("--out", help="folder for the run, its log and soak.json (default: temp)")
     return run(ap.parse_args(argv))
 

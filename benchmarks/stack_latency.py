@@ -43,10 +43,10 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from subprocess import DEVNULL, Popen
 
 import numpy as np
 
+from benchmarks.hog import hog_cpu, load_average, start_hog
 from services.tools.launcher.cpu import CpuMeter, format_cpu
 from services.tools.launcher.supervisor import Supervisor, service_argv, stop_process
 from shared.bus import Bus, TypedPublisher
@@ -63,37 +63,6 @@ TARGET_MARGIN_MS = {"quiet": 1.0, "hog": 3.0}
 #: A solve is "from the newest pose" when no pose was published between its own and this
 #: long before the solve started (the transport and the bridge) [ms].
 FRESH_MARGIN_MS = 2.0
-#: The hog: a busy loop that a SIGINT ends without a traceback.
-HOG_CODE = "import signal\nsignal.signal(signal.SIGINT, signal.SIG_DFL)\nwhile True:\n    pass\n"
-
-
-def start_hog(cpu: int) -> Popen:
-    """A busy-loop subprocess at nice 0 pinned to `cpu` (stop it with ``stop_process``)."""
-    proc = Popen([sys.executable, "-c", HOG_CODE], stdin=DEVNULL)
-    try:
-        os.sched_setaffinity(proc.pid, {cpu})
-        os.setpriority(os.PRIO_PROCESS, proc.pid, 0)  # normal priority, not this process's
-    except (AttributeError, OSError) as exc:  # not Linux: an unpinned hog
-        print(f"hog not pinned ({exc}); it runs on any CPU", file=sys.stderr)
-    return proc
-
-
-def hog_cpu() -> int:
-    """The CPU the hog is pinned to: the last one this process may use."""
-    try:
-        return max(os.sched_getaffinity(0))
-    except AttributeError:
-        return 0
-
-
-def load_average() -> str:
-    """The 1-minute load average as text ("n/a" where there is none)."""
-    try:
-        return f"{os.getloadavg()[0]:.2f}"
-    except OSError:
-        return "n/a"
-
-
 def _stats(x: np.ndarray) -> dict[str, float]:
     x = x[np.isfinite(x)]
     if not len(x):

@@ -204,9 +204,9 @@ class BridgeService(Service):
             if self.lidar is not None:
                 self.lidar.imu(msg.yaw_rate_radps)
 
-    def on_pose(self, pose: Pose) -> None:
+    def on_pose(self, pose: Pose, output: bool = True) -> None:
         """An external pose into the filter; with ``state_output = "on_pose"`` the state it
-        gives goes out at once."""
+        gives goes out at once (`output` False: fused only, a newer pose is queued)."""
         now = self.wall_clock()
         with self._lock:
             teleported = self.core.teleport_stamp_s
@@ -215,7 +215,7 @@ class BridgeService(Service):
                 self.newest_pose = pose
             verdict = self.core.pose(pose.stamp_s, pose.x_m, pose.y_m, pose.yaw_rad, pose.cov,
                                      now)
-            if not self.on_pose_output:
+            if not (self.on_pose_output and output):
                 return
             if self.settings.filter == "passthrough":
                 state = self.passthrough.on_pose(pose, now) if fresh else None
@@ -349,11 +349,20 @@ class BridgeService(Service):
             self.published += 1
 
     def receive(self) -> None:
-        """The input worker: every pose (or scan) as it arrives, until the bus closes."""
-        handle = self.on_scan if self.lidar is not None else self.on_pose
+        """The input worker: every pose (or scan) as it arrives, until the bus closes.
+
+        Poses queued behind the one received (the worker was late: ``pose_queue`` > 1) are
+        all fused, in order, and only the newest one's state goes out: every valid pose
+        reaches the filter, and the planner is not handed an older state first."""
         first = True
         while (msg := self.inputs.recv()) is not None:
-            handle(msg)
+            if self.lidar is not None:
+                self.on_scan(msg)
+            else:
+                while (newer := self.inputs.try_recv()) is not None:
+                    self.on_pose(msg, output=False)
+                    msg = newer
+                self.on_pose(msg)
             if first:
                 self.log.info("first input on %s", self.inputs.key)
                 first = False
@@ -457,7 +466,22 @@ class BridgeService(Service):
                 "median %.2f ms, p99 %.2f ms", st.get("scans", 0), st.get("detections", 0),
                 st.get("scans_without_pose", 0) + st.get("scans_far_from_pose", 0),
                 st.get("cost_median_ms", math.nan), st.get("cost_p99_ms", math.nan))
+        self.log.info("stopping: %s", self.input_summary())
         return code
+
+    def input_summary(self) -> str:
+        """One line of what became of the inputs: the pose (or scan) channel's counts, when
+        the bus keeps them (valid records taken, valid ones lost (overwritten, stale),
+        garbage rejected), and the filter's counts by verdict."""
+        stats = getattr(self.inputs, "stats", None)
+        line = ""
+        if stats is not None:
+            st = stats()
+            line = (f"{self.inputs.key}: {st.valid} valid taken, {st.dropped} valid lost "
+                    f"({st.overwritten} overwritten, {st.stale} stale), {st.rejected} "
+                    "rejected; ")
+        counts = ", ".join(f"{k} {v}" for k, v in sorted(self.counts().items()))
+        return line + f"filter: {counts or 'nothing'}"
 
 
 main = BridgeService.main

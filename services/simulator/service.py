@@ -10,6 +10,18 @@ Stamps are wall-clock seconds of the simulated capture instant (the simulation r
 time, anchored to the wall clock at start), so other services judge message age as on the
 car. Without fresh commands for ``command_timeout_s`` the car brakes, like a VESC timeout.
 
+Real time by design (issue 25). Each loop iteration steps the car and computes that step's
+sensor readings (the lidar scan, its costliest part, included) *before* it waits for the
+wall clock to reach the step's time, so the work uses the step's slack and the messages
+leave at their instant, not a scan's cost later. When the machine still cannot keep up
+(the process waited for a core), the world slows instead of jumping: a loop more than
+``MAX_LAG_S`` behind real time is not caught up by a burst of old-stamped messages, nor
+later by a skip; the clocks are re-anchored by the excess at once, so the simulated world
+(the car, every sensor, the lap timer) lost that much time against the wall clock and goes
+on step by step from where it was, its stamps never more than ``MAX_LAG_S`` old. Each is
+counted (``slowdowns``, ``slowed_s``; the 1st, 10th, 100th ... said in the log) and the
+world's rate (simulated / wall time) is in the closing line.
+
 Nothing it publishes is outside its own contract, and it never dies of its own output:
 
 * angles are wrapped into the contract's range where the records are made (yaw and slip
@@ -74,6 +86,7 @@ from services.simulator.collision import ContactParams, Motion, respond
 from services.simulator.fleet import CarView
 from services.simulator.laps import centreline_pose
 from services.simulator.limits import state_fault
+from services.simulator.sensors import SensorReadings
 from services.simulator.state import Pose2D, rear_axle
 from services.simulator.vesc_actuation import VescActuation
 from shared.angles import wrap_angle
@@ -123,12 +136,12 @@ TRUTH_RATE_HZ = 50.0
 START_OFFSET_M = OUT_LAP_START_M
 #: A loop iteration later than this behind real time is counted as an overrun [s].
 OVERRUN_S = 0.02
-#: Further behind real time than this [s], the simulation skips ahead instead of catching
-#: up: the clocks are re-anchored so that its stamps are fresh again (the car's motion
-#: stays integrated step by step; the simulation then runs slower than real time). Without
-#: it a loaded machine would keep the simulator behind for good, its stamps too old for the
-#: bridge (0.5 s history) and its state too old for the planner (100 ms: it brakes).
-MAX_LAG_S = 0.05
+#: Further behind real time than this [s], the world slows: the clocks are re-anchored by
+#: the excess, so the stamps are at most this old and the car's motion stays integrated
+#: step by step (the world then ran slower than real time; module docstring). Two steps:
+#: a late wake-up is caught up, a longer wait for a core is not burst out with old stamps
+#: (each of them brings the planner's 100 ms stale-state limit that much closer).
+MAX_LAG_S = 0.02
 #: Key under which faults of the car's state are counted in ``bus.faults`` (not a bus key).
 STATE_FAULT_KEY = "car state"
 #: Shortest interval between two ``events/log`` lines about fault resets [s].
@@ -208,8 +221,9 @@ class SimulatorService(Service):
         self.paused = False
         self.stopped = False  #: off_track_policy "stop" acted: commands are ignored
         self.overruns = 0
-        self.skips = 0  #: times it was more than MAX_LAG_S behind and skipped ahead
-        self.skipped_s = 0.0  #: wall time skipped in all [s]
+        self.slowdowns = 0  #: times it was more than MAX_LAG_S behind and the world slowed
+        self.slowed_s = 0.0  #: world time lost against the wall clock in all [s]
+        self.longest_slowdown_s = 0.0  #: the largest single one [s]
         self.fault_resets = 0  #: resets because the car's state left the contract
         self.off_track_actions = 0  #: off-track events the policy acted on (or let pass)
         self.teleports = 0  #: times the car was put elsewhere (each said on vehicle/teleport)
@@ -372,13 +386,15 @@ class SimulatorService(Service):
             elif ctl.action == SimActionName.RESUME:
                 self.paused = self.stopped = False
 
-    def publish(self, res: StepResult) -> None:
-        """Sensors, truth and lap events of one step.
+    def publish(self, res: StepResult, readings: SensorReadings | None = None) -> None:
+        """Sensors, truth and lap events of one step (`readings`: the sensors' output for
+        `res`, computed ahead by the loop; None: computed here).
 
         Angles are wrapped into [-pi, pi); every record goes through ``try_put``, so one that
         fails validation is counted in ``bus.faults`` and skipped, never raised.
         """
-        readings = self.sensors.update(res)
+        if readings is None:
+            readings = self.sensors.update(res)
         if self.vesc is not None:  # the fake VESC's IMU measures the step's truth
             self.vesc.set_imu(res.state.yaw_rate_radps, res.accel_long_mps2, res.accel_lat_mps2)
         for m in readings.pose:
@@ -515,13 +531,20 @@ class SimulatorService(Service):
             self.track.length_m,
             self.keys.drive_cmd if self.vesc is None else f"a vesc_driver on {self.vesc.path}",
         )
+        wall0 = self.clock()
+        sim0 = self.sim.t_s
         self.run(stop)
+        wall = self.clock() - wall0
+        rate = (self.sim.t_s - sim0) / wall if wall > 0 else 1.0
         self.log.info(
-            "stopping (%d real-time overruns, %d skips ahead (%.2f s), %d own faults, "
-            "%d fault resets, %d off-track)",
+            "stopping (%d real-time overruns, %d slowdowns of the world (%.2f s, longest "
+            "%.3f s; the world ran at %.3f of real time), %d own faults, %d fault resets, "
+            "%d off-track)",
             self.overruns,
-            self.skips,
-            self.skipped_s,
+            self.slowdowns,
+            self.slowed_s,
+            self.longest_slowdown_s,
+            rate,
             self.faults.total,
             self.fault_resets,
             self.off_track_actions,
@@ -549,6 +572,10 @@ class SimulatorService(Service):
                 continue
             # None: the car was reset (its state left the contract)
             res, *rest = self.step_fleet(h) if self.others else (self.advance(h),)
+            # the step's sensor readings (the lidar scan too) before the wait: in its slack
+            readings = self.sensors.update(res) if res is not None else None
+            rest_readings = [car.sensors.update(r) if r is not None else None
+                             for car, r in zip(self.others, rest, strict=True)]
             if self.sim.t_s >= next_debug_s:  # with -v: a line every DEBUG_PERIOD_S
                 next_debug_s = self.sim.t_s + DEBUG_PERIOD_S
                 st = self.sim.state
@@ -560,25 +587,28 @@ class SimulatorService(Service):
             delay = t0_mono + self.sim.t_s - self.clock()
             if delay > 0:
                 stop.wait(delay)
-            elif delay < -OVERRUN_S:
-                self.overruns += 1
-                if delay < -MAX_LAG_S:  # too far behind to catch up: skip ahead
-                    t0_mono -= delay
-                    self.t0_wall -= delay
-                    self.skips += 1
-                    self.skipped_s -= delay
-                    if math.log10(self.skips).is_integer():  # 1st, 10th, 100th, ...
+            else:
+                if delay < -OVERRUN_S:
+                    self.overruns += 1
+                if delay < -MAX_LAG_S:  # the world slows by the excess (module docstring)
+                    excess = -delay - MAX_LAG_S
+                    t0_mono += excess
+                    self.t0_wall += excess
+                    self.slowdowns += 1
+                    self.slowed_s += excess
+                    self.longest_slowdown_s = max(self.longest_slowdown_s, excess)
+                    if math.log10(self.slowdowns).is_integer():  # 1st, 10th, 100th, ...
                         self.log.warning(
-                            "%.2f s behind real time: the simulation skips ahead (%d times, "
+                            "%.3f s behind real time: the world slows by %.3f s (%d times, "
                             "%.2f s in all; the machine is too loaded for real time)",
-                            -delay, self.skips, self.skipped_s,
+                            -delay, excess, self.slowdowns, self.slowed_s,
                         )
             if res is not None:
-                self.publish(res)
-            for car, r in zip(self.others, rest, strict=True):
+                self.publish(res, readings)
+            for car, r, rd in zip(self.others, rest, rest_readings, strict=True):
                 car.t0_wall = self.t0_wall  # one clock for all
                 if r is not None:
-                    car.publish(r)
+                    car.publish(r, rd)
 
 
 main = SimulatorService.main

@@ -54,6 +54,17 @@ class FakeChannel:
         """The next record; None once closed."""
         return self._queue.get()
 
+    def try_recv(self) -> Any:
+        """The next record if one is queued, else None (never waits; a close stays queued
+        for ``recv``)."""
+        try:
+            record = self._queue.get_nowait()
+        except queue.Empty:
+            return None
+        if record is None:
+            self._queue.put(None)
+        return record
+
 
 class FakeBus:
     """What the service shells use of ``Bus``, in process (see the module docstring)."""

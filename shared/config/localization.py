@@ -140,7 +140,9 @@ class LocalizationSettings(Section):
             used; ekf: speed and yaw rate inputs older than this against now are not
             trusted beyond the process noise (no effect on the maths) [s].
         max_prediction_s: longest prediction from the newest measurement to now [s].
-        pose_queue: poses kept waiting for the worker; 1 = only the newest [messages].
+        pose_queue: poses kept waiting for the worker; 1 = only the newest. When the worker
+            was late, it fuses every queued pose in order and sends the newest one's state
+            (so a loaded machine or a garbage flood loses no valid pose) [messages].
         check_period_s: period of the main thread's watchdog: drop and fault reports on
             ``events/log`` [s].
         noise: the EKF's noise (``EkfNoise``).
@@ -167,7 +169,7 @@ class LocalizationSettings(Section):
     latency_compensation: bool = True
     max_input_age_s: float = Field(0.25, gt=0.0, le=10.0, allow_inf_nan=False)
     max_prediction_s: float = Field(0.1, ge=0.0, le=1.0, allow_inf_nan=False)
-    pose_queue: int = Field(1, ge=1, le=1000)
+    pose_queue: int = Field(4, ge=1, le=1000)
     check_period_s: float = Field(0.2, gt=0.0, le=10.0, allow_inf_nan=False)
     noise: EkfNoise = EkfNoise()
     particle_filter: ParticleFilterSettings = ParticleFilterSettings()

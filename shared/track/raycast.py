@@ -18,6 +18,16 @@ nearest blocked centre is at least ``d - sqrt(2) r`` from any blocked cell (r = 
 each ray advances by ``max(d - sqrt(2) r, r / 2)`` until it reaches a blocked cell (range =
 midpoint of the last step, error <= r / 4 plus the rasterisation), leaves the map or passes
 ``range_max`` (both: ``range_max``, no return).
+
+The march is numpy-vectorised over the rays, so its cost is per iteration, and its last
+iterations carry few rays (the long ones and those grazing a wall, which crawl at r / 2).
+After ``MARCH_STEPS`` steps the rays still going (per ray, so a ray's range does not depend
+on the rays cast with it) instead sample, per iteration, the next
+``EDT_CAP_M`` of every remaining ray at r / 2 spacing in one (rays, samples) array and
+takes its first blocked sample (range = that sample - r / 4, the same error bound): a
+scan's iterations drop from 40-90 to about 15-25 (1080 beams on map416: 1.6x cheaper).
+The cell lookup goes through a field padded with one "outside" cell around the map, so no
+bounds test per sample.
 """
 
 from __future__ import annotations
@@ -30,6 +40,8 @@ from shared.track.occupancy import OCCUPIED, UNKNOWN, OccupancyGrid
 
 #: Distances in the ray-marching transform are exact up to this [m]; rays step at most this far.
 EDT_CAP_M = 2.0
+#: Rays still going after this many steps are sampled at r / 2 instead (module docstring).
+MARCH_STEPS = 12
 
 __all__ = ["EDT_CAP_M", "RayMarcher", "blocked_cells", "distance_transform", "to_grid_frame"]
 
@@ -111,10 +123,30 @@ class RayMarcher:
         cap = max(1, int(cap_m / r))
         dist_m = distance_transform(blocked, cap).astype(np.float64) * r
         step = np.maximum(dist_m - math.sqrt(2.0) * r, 0.5 * r)
-        # flat step field: a negative value marks a blocked cell
-        self._step = np.where(blocked, -1.0, step).ravel()
-        self._rows, self._cols = blocked.shape
+        # flat step field padded with one cell around the map: a negative value marks a
+        # blocked cell, 0 a cell outside the map
+        rows, cols = blocked.shape
+        padded = np.zeros((rows + 2, cols + 2))
+        padded[1:-1, 1:-1] = np.where(blocked, -1.0, step)
+        self._step = padded.ravel()
+        self._rows, self._cols = rows, cols
+        self._tail_samples = max(1, round(cap_m / (0.5 * r)))
         self.distance_m = dist_m
+
+    def _field_at(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+        """The step field at grid-frame points [m] (any shape): < 0 blocked, 0 outside the
+        map, else the safe step [m]."""
+        inv_r = 1.0 / self.resolution_m
+        cols, rows = self._cols, self._rows
+        cx = np.floor(gx * inv_r)
+        cy = np.floor(gy * inv_r)
+        np.clip(cx, -1.0, cols, out=cx)
+        np.clip(cy, -1.0, rows, out=cy)
+        cy += 1.0
+        cy *= cols + 2
+        cy += cx
+        cy += 1.0
+        return self._step[cy.astype(np.intp)]
 
     def cast(
         self,
@@ -142,28 +174,46 @@ class RayMarcher:
         t = np.zeros(n)
         last = np.zeros(n)
         active = np.arange(n)
-        rows, cols = self._rows, self._cols
-        step_field = self._step
-        inv_r = 1.0 / self.resolution_m
         rmax = float(range_max_m)
-        while active.size:
+        for _ in range(MARCH_STEPS):
+            if not active.size:
+                break
             ta = t[active]
-            cx = np.floor((gx[active] + ta * dx[active]) * inv_r).astype(np.int64)
-            cy = np.floor((gy[active] + ta * dy[active]) * inv_r).astype(np.int64)
-            inside = (cx >= 0) & (cx < cols) & (cy >= 0) & (cy < rows)
-            st = np.full(active.size, np.inf)
-            st[inside] = step_field[cy[inside] * cols + cx[inside]]
+            st = self._field_at(gx[active] + ta * dx[active], gy[active] + ta * dy[active])
             hit = st < 0.0
             if hit.any():
                 h = active[hit]
                 out[h] = np.maximum(t[h] - 0.5 * last[h], 0.0)
-            # outside the map (inf) or hit: finished; others advance
-            go = ~hit & np.isfinite(st)
+            # outside the map (0) or hit: finished; others advance
+            go = st > 0.0
             active = active[go]
             stp = st[go]
-            t_new = t[active] + stp
+            t_new = ta[go] + stp
             last[active] = stp
             t[active] = t_new
-            far = t_new >= rmax
-            active = active[~far]
+            active = active[t_new < rmax]
+        if active.size:  # the tail: its current points first (not yet looked up)
+            ta = t[active]
+            st = self._field_at(gx[active] + ta * dx[active], gy[active] + ta * dy[active])
+            hit = st < 0.0
+            if hit.any():
+                h = active[hit]
+                out[h] = np.maximum(t[h] - 0.5 * last[h], 0.0)
+            active = active[st > 0.0]
+        half = 0.5 * self.resolution_m
+        offsets = half * np.arange(1, self._tail_samples + 1)  # (K,) [m]
+        while active.size:  # then EDT_CAP_M of samples at r / 2 per iteration
+            ts = t[active][:, None] + offsets[None, :]  # (A, K)
+            st = self._field_at(gx[active][:, None] + ts * dx[active][:, None],
+                                gy[active][:, None] + ts * dy[active][:, None])
+            st[ts >= rmax] = 0.0  # beyond range: no return
+            event = st <= 0.0
+            ended = event.any(axis=1)
+            k = event.argmax(axis=1)
+            rows_ = np.arange(active.size)
+            blocked = ended & (st[rows_, k] < 0.0)
+            out[active[blocked]] = ts[rows_[blocked], k[blocked]] - 0.5 * half
+            keep = ~ended
+            active = active[keep]
+            t[active] = ts[keep, -1]
         return np.minimum(out, rmax).reshape(shape)

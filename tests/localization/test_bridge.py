@@ -120,6 +120,34 @@ def test_each_fused_pose_publishes_its_state_at_once_and_a_gated_one_does_not() 
     assert (st.x_m, st.y_m, st.stamp_s) == (pytest.approx(5.0), pytest.approx(1.0), 1000.06)
 
 
+def test_poses_queued_behind_a_late_worker_are_all_fused_and_only_the_newest_is_sent() -> None:
+    """A worker late by three poses (a loaded machine, a garbage flood beside them): each
+    pose reaches the filter, in order, and one state goes out, the newest pose's."""
+    bus = FakeBus()
+    wall = Clock(1000.0)
+    svc = BridgeService(bus, LocalizationSettings())
+    svc.wall_clock = wall
+    svc.on_pose(Pose(stamp_s=999.99, x_m=1.0, y_m=2.0, yaw_rad=0.0))
+    wall.t = 1000.08
+    channel = bus.channels[bus.keys.pose]
+    for k in range(3):
+        channel.put(Pose(stamp_s=1000.0 + 0.025 * k, x_m=1.0 + 0.05 * (k + 1), y_m=2.0,
+                         yaw_rad=0.0))
+    channel.put(None)  # the bus closes: receive() returns once the queue is empty
+    applied = svc.core.counts["pose_applied"]
+    svc.receive()
+    assert svc.core.counts["pose_applied"] == applied + 3
+    states = bus.sent(bus.keys.state, State)
+    assert [s.source_stamp_s for s in states] == pytest.approx([999.99, 1000.05])
+
+
+def test_the_closing_summary_names_the_filter_counts() -> None:
+    bus = FakeBus()
+    svc = BridgeService(bus, LocalizationSettings())
+    svc.on_pose(Pose(stamp_s=time.time(), x_m=1.0, y_m=2.0, yaw_rad=0.0))
+    assert "pose_initialised 1" in svc.input_summary()  # the fake channel keeps no stats
+
+
 def test_a_state_older_than_the_one_already_sent_is_dropped_and_counted() -> None:
     """The pose path and the fallback worker both publish: a state computed before the other
     thread's but sent after it would take the planner back in time."""

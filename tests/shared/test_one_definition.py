@@ -55,7 +55,7 @@ def test_localization_section_defaults_are_the_bridge_s_and_load_from_toml(
     defaults = load_config(None).localization
     assert (core.max_input_age_s, core.max_prediction_s) == (0.25, 0.1)
     assert (defaults.max_input_age_s, defaults.max_prediction_s) == (0.25, 0.1)
-    assert (defaults.pose_queue, defaults.check_period_s) == (1, 0.2)
+    assert (defaults.pose_queue, defaults.check_period_s) == (4, 0.2)
     toml = tmp_path / "c.toml"
     toml.write_text(textwrap.dedent("""
         [localization]
