@@ -34,6 +34,7 @@ from services.planner.mintime.requests import LIMIT as MIN_TIME_LIMIT
 from services.planner.mintime.requests import USES as MIN_TIME_USES
 from services.planner.mintime.requests import (
     LapRequest,
+    for_pose_source,
     laps_of,
     limit_request,
     line_request,
@@ -81,6 +82,7 @@ __all__ = [
     "TrackerTiming",
     "discretise",
     "ensure_artefacts",
+    "for_pose_source",
     "kinematic_bicycle",
     "laps_of",
     "limit_request",

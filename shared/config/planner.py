@@ -153,6 +153,24 @@ class RacelineSettings(Section):
         0.02, ge=0.0, le=1.0,
         description="min_time: keep the car's footprint this far inside the boundaries [m]",
     )
+    servo_margin_m: float = Field(
+        0.03, ge=0.0, le=1.0,
+        description="min_time, a car with a slow servo (its lag inverted by the tracker, "
+        "e.g. the identified car's 0.158 s): this much more margin [m], the tube of its "
+        "tracking error (2-3 cm outside the line at a bend's entry; tuned on the "
+        "generator's TUNING_SEEDS); no effect on the gym car",
+    )
+    ekf_margin_m: float = Field(
+        0.0, ge=0.0, le=1.0,
+        description="min_time, the planner on the EKF's poses (the bench's --estimator ekf, "
+        "the stack's external pose): this much more margin [m], the tube of the "
+        "localisation error (``mintime.requests.for_pose_source``)",
+    )
+    lidar_margin_m: float = Field(
+        0.0, ge=0.0, le=1.0,
+        description="min_time, the planner on the lidar particle filter's poses: this much "
+        "more margin [m] (``mintime.requests.for_pose_source``)",
+    )
     min_time_slip_fraction: float = Field(
         0.8, ge=0.1, le=1.0,
         description="min_time, Pacejka tyres: each axle's slip angle stays within this share "
@@ -192,6 +210,23 @@ class RacelineSettings(Section):
     k_outward_per_s2: float = Field(
         25.0, ge=0.0, le=1000.0,
         description="tracker: acceleration cut per m of drift to a bend's outside [1/s^2]",
+    )
+    grip_error_m: float = Field(
+        0.0, ge=0.0, le=2.0,
+        description="grip adaptation: each tick the car is further than this from the line "
+        "[m] the plan's speeds shrink by grip_step; 0 (default): off. 0.2 took the identified "
+        "car on the gym car's line from 2.9-4.8 to 1.37-1.43 of its limit, but also slowed "
+        "the identified car told its car on map416 (ekf 1.107, 14 off-track, against 1.053 "
+        "off)",
+    )
+    grip_step: float = Field(
+        0.02, ge=0.0, le=0.5,
+        description="grip adaptation: the speed scale's cut per tick beyond grip_error_m [1]",
+    )
+    grip_min_scale: float = Field(
+        0.7, gt=0.1, le=1.0,
+        description="grip adaptation: the lowest speed scale (0.7 of the plan's speeds, "
+        "0.49 of its lateral acceleration) [1]",
     )
     speed_delay_s: float = Field(
         0.012, ge=0.0, le=1.0,

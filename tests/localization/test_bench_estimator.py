@@ -44,3 +44,21 @@ def test_the_start_pose_is_the_rear_axle_of_the_bench_start() -> None:
     est = InLoopEstimator("ekf", track, sim, LocalizationSettings(), start)
     e = est.filter.estimate(0.0)
     assert e.valid and math.hypot(e.x_m - start[0], e.y_m - start[1]) < 1e-9
+
+
+
+def test_the_lidar_grid_is_made_once_per_track_in_a_process(monkeypatch) -> None:
+    from services.tools.bench import estimation
+
+    made: list[str] = []
+    monkeypatch.setattr(estimation, "occupancy_for", lambda t: made.append(t.name) or object())
+    monkeypatch.setattr(estimation, "_GRIDS", {})
+    monkeypatch.setattr(estimation, "GRID_CACHE_SIZE", 2)
+    a, b = load_track("paperlike"), load_track("paperlike")  # two loads of one track
+    grid = estimation.track_grid(a)
+    assert estimation.track_grid(b) is grid and made == ["paperlike"]
+    other = estimation.track_grid(load_track("gen:1"))
+    assert other is not grid and len(made) == 2
+    estimation.track_grid(load_track("gen:2"))  # a bounded cache: the oldest goes
+    assert len(estimation._GRIDS) == 2
+    assert estimation.track_grid(a) is not grid and made[-1] == "paperlike"

@@ -15,7 +15,9 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
 - ``raceline``: the raceline baseline's line with ``[planner.raceline] line = "min_time"``
   (``raceline_request``): the car's steering within the planner's bounds, top speed
   ``v_max_mps``, grid ``ds_m``, margin ``min_time_margin_m`` and the Pacejka reserves
-  ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``.
+  ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``;
+  the margin widened for a slow servo (``servo_margin_m``) and, through
+  ``for_pose_source``, for the pose source (``ekf_margin_m``, ``lidar_margin_m``).
 
 ``laps_of(method, settings)`` says which of them a planner method needs. Pure functions:
 no I/O, no solve.
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from services.planner.mintime.model import servo_reach
 from services.planner.mintime.ocp import MinTimeSettings
 from shared.config.methods import METHODS, method_spec
 from shared.config.planner import PlannerSettings, RacelineSettings
@@ -71,16 +74,49 @@ def planning_vehicle(
     )
 
 
-def min_time_settings(settings: RacelineSettings) -> MinTimeSettings:
+def min_time_settings(
+    settings: RacelineSettings, car: DynamicVehicleParams | None = None
+) -> MinTimeSettings:
     """The raceline's minimum-time problem: top speed [m/s], grid [m], footprint margin [m]
-    of `settings` (``[planner.raceline]``)."""
+    of `settings` (``[planner.raceline]``) for `car` (None: the gym's). The margin is
+    ``min_time_margin_m``, plus ``servo_margin_m`` for a car with a slow servo
+    (``mintime.model.servo_reach``: its tracker inverts the lag and still runs 2-3 cm
+    outside the line where a bend begins), plus the pose source's tube when the settings
+    come through ``for_pose_source``."""
+    margin = settings.min_time_margin_m
+    if servo_reach(car or F1TENTH_GYM) is not None:
+        margin += settings.servo_margin_m
     return MinTimeSettings(
         v_max_mps=settings.v_max_mps,
         ds_m=settings.ds_m,
-        margin_m=settings.min_time_margin_m,
+        margin_m=min(margin, 1.0),
         slip_fraction=settings.min_time_slip_fraction,
         ellipse_fraction=settings.min_time_ellipse_fraction,
     )
+
+
+#: The pose sources of ``for_pose_source`` and their margin keys of ``[planner.raceline]``.
+POSE_MARGINS = {"truth": None, "ekf": "ekf_margin_m", "lidar": "lidar_margin_m"}
+
+
+def for_pose_source(settings: PlannerSettings, pose: str) -> PlannerSettings:
+    """`settings` for a planner that sees poses from `pose` (``POSE_MARGINS``: ``truth``,
+    ``ekf``, ``lidar``): the raceline's ``min_time_margin_m`` widened by that source's
+    margin (``ekf_margin_m``, ``lidar_margin_m``), a tube for the localisation error; the
+    settings themselves for ``truth`` or a zero margin.
+
+    Raises:
+        ValueError: an unknown pose source.
+    """
+    if pose not in POSE_MARGINS:
+        raise ValueError(f"unknown pose source {pose!r}; choose one of {', '.join(POSE_MARGINS)}")
+    key = POSE_MARGINS[pose]
+    extra = 0.0 if key is None else float(getattr(settings.raceline, key))
+    if extra == 0.0:
+        return settings
+    o = settings.raceline
+    raceline = o.model_copy(update={"min_time_margin_m": min(o.min_time_margin_m + extra, 1.0)})
+    return settings.model_copy(update={"raceline": raceline})
 
 
 def line_request(
@@ -112,7 +148,7 @@ def raceline_request(
     bounds = settings.bounds.delta_rad
     return LapRequest(
         planning_vehicle(car or F1TENTH_GYM, (bounds[0], bounds[1])),
-        min_time_settings(settings.raceline),
+        min_time_settings(settings.raceline, car),
     )
 
 

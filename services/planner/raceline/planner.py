@@ -309,7 +309,7 @@ def build_min_time_raceline(
     """
     car = planning_vehicle(vehicle, steering_limits_rad)
     try:
-        lap = (loader or default_min_time_loader)(track, car, min_time_settings(settings))
+        lap = (loader or default_min_time_loader)(track, car, min_time_settings(settings, vehicle))
     except MinTimeArtefactMissingError:
         raise  # its own line: the command that makes the lap
     except MinTimeError as exc:
@@ -470,6 +470,9 @@ class RacelinePlanner:
         self.recovery.reset()
         self._stall.reset()
         self._handover.active = False
+        #: the grip adaptation's speed scale (``step``): 1 until the car strays off the line
+        self.speed_scale = 1.0
+        self._on_line = False  #: reached the line since the start or the last recovery
         #: peaky tyres: join the line at JOIN_SPEED_MPS first, then ramp up (``step``)
         self._joining = ramps_from_rest(self.vehicle)
         self._drove = False  #: the last tick's command was the tracker's
@@ -590,14 +593,17 @@ class RacelinePlanner:
                 status=RECOVERING,
             )
         if was_recovering:  # hand back at the car's speed and ramp up
+            self._on_line = False
             self._handover.start(self._speed_cmd)
             self._joining = ramps_from_rest(self.vehicle)
         plan = self.plan = self._plan_around(cx, cy, hint)
         if plan is not FREE or self._offset != 0.0:  # ramp the offset towards the plan's
             step = 2.0 * self.overtake.lateral_rate_mps * self.settings.dt_s
             self._offset += min(max(plan.offset_m - self._offset, -step), step)
-        tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset)
+        tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset,
+                                  speed_scale=self.speed_scale)
         self._s_line = tc.s_m
+        self._adapt_grip(tc.e_m - self._offset)  # an overtake's offset is no slide
         speed = tc.speed_mps
         steering = tc.steering_rad
         if plan is not FREE:
@@ -620,6 +626,21 @@ class RacelinePlanner:
         if on_command is not None:
             on_command(cmd)
         return self._result(cmd, x_m, y_m, yaw_rad, tc.s_m, s_t, e_t, "tracker", t0)
+
+    def _adapt_grip(self, e_line_m: float) -> None:
+        """The grip adaptation: a tick with the car's CoG more than ``grip_error_m`` off the
+        line (once it has reached the line since the start or the last recovery) cuts the
+        speed scale by ``grip_step`` (down to ``grip_min_scale``); it never
+        rises again in a run. A car that has the grip it is planned for stays within a few
+        centimetres of its line and keeps the plan; one planned on another car's grip (the
+        identified car raced on the gym car's line) slides wide in its first bends and
+        settles at the speeds it can hold."""
+        o = self.options
+        if not self._on_line:  # joining it (the start, after a recovery) is no slide
+            self._on_line = abs(e_line_m) < 0.5 * o.grip_error_m
+            return
+        if o.grip_error_m > 0.0 and abs(e_line_m) > o.grip_error_m:
+            self.speed_scale = max(o.grip_min_scale, self.speed_scale * (1.0 - o.grip_step))
 
     def _relocate(self) -> None:
         """Forget where the car was (a teleport, ``TELEPORT_JUMP_M``), keeping the counts."""

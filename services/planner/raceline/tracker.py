@@ -372,6 +372,7 @@ class Tracker:
         yaw_rad: float,
         s_hint_m: float | None = None,
         offset_m: float = 0.0,
+        speed_scale: float = 1.0,
     ) -> TrackerCommand:
         """The command from the CoG pose (x, y [m], yaw [rad]); see the module docstring.
 
@@ -382,14 +383,19 @@ class Tracker:
             offset_m: drive this far right of the path (left: negative) [m]: the errors
                 ``e`` are taken from the offset (an overtake, ``raceline.overtake``); the
                 returned ``e_m`` stays the distance from the path itself.
+            speed_scale: ``c`` in (0, 1]: the plan driven at ``c`` times its speed (the
+                lateral acceleration ``c^2`` of it, the acceleration demand ``c^2 a_p``, the
+                plan's clock ``c`` times as fast: a car with less grip than planned,
+                ``RacelinePlanner``'s grip adaptation); 1: the plan itself.
         """
         p = self.plan
         g = self.gains
+        c = float(speed_scale)
         s, e_path = self.project(x_m, y_m, s_hint_m)
         self._s_hint = s
         e = e_path - offset_m
         dpsi = wrap_angle(yaw_rad - p.at("yaw", s))
-        v_p = p.at("v", s)
+        v_p = c * p.at("v", s)
         l_d = g.lookahead_m(v_p)
         e_la = e - l_d * math.sin(dpsi)
         tau = self.timing.servo_time_constant_s
@@ -398,16 +404,17 @@ class Tracker:
             if prev is not None:
                 e_la += tau * (e_la - prev) / self.timing.period_s
         t0 = p.at("t", s)
-        s_steer = p.s_at_time(t0 + self._w_steer)
+        w_steer, w_speed = c * self._w_steer, c * self._w_speed  # in the plan's time
+        s_steer = p.s_at_time(t0 + w_steer)
         steering = float(np.mean(p.at("delta", s_steer))) + g.k_lateral_radpm * e_la
         if tau > 0.0:  # the servo's lag inverted: its target leads by tau times the rate
             h = LAG_RATE_STEP_S
-            ahead = p.at("delta", p.s_at_time(t0 + self._w_steer + h))
-            behind = p.at("delta", p.s_at_time(t0 + self._w_steer - h))
+            ahead = p.at("delta", p.s_at_time(t0 + w_steer + c * h))
+            behind = p.at("delta", p.s_at_time(t0 + w_steer - c * h))
             steering += tau * float(np.mean(ahead - behind)) / (2.0 * h)
-        s_speed = p.s_at_time(t0 + self._w_speed)
+        s_speed = p.s_at_time(t0 + w_speed)
         outward = max(0.0, e * math.tanh(p.at("kappa", s) / KAPPA_OUTWARD_1PM))
-        a_cmd = float(np.mean(p.accel_at(s_speed))) - g.k_outward_per_s2 * outward
+        a_cmd = c * c * float(np.mean(p.accel_at(s_speed))) - g.k_outward_per_s2 * outward
         k = self.k_accel if a_cmd >= 0.0 else self.k_brake
-        speed = float(np.mean(p.at("v", s_speed))) + a_cmd / k
+        speed = c * float(np.mean(p.at("v", s_speed))) + a_cmd / k
         return TrackerCommand(speed, steering, s, e_path, dpsi, a_cmd, l_d)

@@ -25,10 +25,27 @@ from shared.angles import wrap_angle
 from shared.config.localization import LocalizationSettings
 from shared.config.simulator import SimulatorSettings
 from shared.messages import Scan
-from shared.track import Track, occupancy_for
+from shared.track import OccupancyGrid, Track, occupancy_for
 
 #: The estimators of ``--estimator``.
 ESTIMATORS = ("truth", "ekf", "lidar")
+#: Occupancy grids made in this process, by track (``track_grid``).
+_GRIDS: dict[tuple, OccupancyGrid] = {}
+#: ... at most this many (the robustness benchmark's workers race a few tracks each).
+GRID_CACHE_SIZE = 4
+
+
+def track_grid(track: Track) -> OccupancyGrid:
+    """``occupancy_for(track)``, made once per track in a process: rasterising a generated
+    track's boundaries takes 10-60 s, a quarter of a lidar cell of the robustness benchmark,
+    and every car and method on that track reads the same grid (read-only)."""
+    key = (track.name, track.source, track.n_points, float(track.length_m),
+           float(np.sum(track.xy)), float(np.sum(track.w_left_m) + np.sum(track.w_right_m)))
+    if key not in _GRIDS:
+        if len(_GRIDS) >= GRID_CACHE_SIZE:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        _GRIDS[key] = occupancy_for(track)
+    return _GRIDS[key]
 
 
 class InLoopEstimator:
@@ -54,7 +71,7 @@ class InLoopEstimator:
         if kind not in ("ekf", "lidar"):
             raise ValueError(f"estimator must be 'ekf' or 'lidar', got {kind!r}")
         self.kind = kind
-        grid = occupancy_for(track) if kind == "lidar" else None
+        grid = track_grid(track) if kind == "lidar" else None
         self.sensors = SensorSuite(sim_settings, grid)
         self.filter = FusedEstimator(settings)
         self.lidar = (

@@ -65,6 +65,47 @@ def test_the_rear_peak_slip_of_each_tyre_model() -> None:
         math.tan(math.pi / 3.0) / 20.0, rel=1e-6)
 
 
+def test_linear_tyres_have_no_peak_so_a_spin_is_judged_against_their_limit_lap() -> None:
+    """The gym's unbounded linear tyres: the car's own limit lap asks for several times
+    ``1 / C_Sr`` at the rear, so that lap's largest rear slip is their reference."""
+    linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
+    nominal = 1.0 / linear.cornering_stiffness_rear_per_rad
+    n = 50
+    v, r = np.full(n, 3.0), np.full(n, 2.0)
+    beta = np.linspace(-0.3, 0.3, n)
+    states = np.zeros((n, len(rb.STATE_NAMES)))
+    states[:, rb.V_MPS], states[:, rb.BETA], states[:, rb.R_RADPS] = v, beta, r
+    lap = type("Lap", (), {"states": states})()
+    alpha = np.arctan(np.tan(beta) - linear.lr_m * r / (v * np.cos(beta)))
+    assert rb.lap_rear_slip_rad(lap, linear) == pytest.approx(np.abs(alpha).max())
+    assert rb.rear_peak_slip_rad(linear, lap) == pytest.approx(max(nominal, np.abs(alpha).max()))
+    assert rb.rear_peak_slip_rad(linear) == pytest.approx(nominal)  # no lap: nominal
+    # the other tyres keep their own peak whatever the lap
+    assert rb.rear_peak_slip_rad(F1TENTH_GYM, lap) == pytest.approx(nominal)
+    assert rb.rear_peak_slip_rad(REAL_CAR_IDENTIFIED, lap) == rb.rear_peak_slip_rad(
+        REAL_CAR_IDENTIFIED)
+
+
+def test_the_target_line_names_the_worst_cell_per_pose_source_and_the_verdict() -> None:
+    m = RACELINE
+    cells = [
+        _cell("a", "default", "truth", **{m: _rec(1.01)}),
+        _cell("b", "identified", "truth", **{m: _rec(1.02)}),
+        _cell("a", "default", "ekf", **{m: _rec(1.06, False)}),
+        _cell("a", "identified-on-default", "truth", **{m: _rec(1.12)}),
+    ]
+    s = rb.summarise(cells, m)
+    assert s["worst_cell"] == {"truth": "b identified", "ekf": "a default", "lidar": None}
+    assert s["worst_cell_mismatch"] == "a identified-on-default"
+    assert rb.target_line(m, s) == (
+        f"targets {m}: truth 1.020 (b identified) vs 1.03 met; ekf 1.060 (a default) vs "
+        "1.05 NOT met; lidar -; mismatch 1.120 (a identified-on-default) vs 1.15 met; "
+        "clean 3/4 cells")
+    assert rb.wall_line({"minimum-time laps": 30.0, "cells": 1770.0}) == (
+        "wall time: 1800 s (30.0 min; minimum-time laps 30 s, cells 1770 s) vs 30 min met")
+    assert rb.wall_line({"cells": 1801.0}).endswith("NOT met")
+
+
 def _run(laps: list[float], off: int = 0, recoveries: int = 0, slip_over_s: float = 0.0,
          requested: int | None = None, speed: float = 4.0) -> MethodRun:
     t, slip = _slip_trace(slip_over_s)

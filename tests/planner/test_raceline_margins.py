@@ -1,0 +1,103 @@
+"""The raceline's margins beyond the footprint's: a tube for a slow servo's tracking error and
+one per pose source (``services.planner.mintime.requests``)."""
+
+from __future__ import annotations
+
+import pytest
+
+from services.planner import for_pose_source, raceline_request, servo_reach
+from services.planner.mintime.requests import POSE_MARGINS, min_time_settings
+from shared.config.planner import PlannerSettings, RacelineSettings
+from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED
+
+
+def test_a_slow_servo_widens_the_line_s_margin_and_the_gym_car_keeps_its_own() -> None:
+    o = RacelineSettings(min_time_margin_m=0.02, servo_margin_m=0.03)
+    assert servo_reach(F1TENTH_GYM) is None and servo_reach(REAL_CAR_IDENTIFIED) is not None
+    assert min_time_settings(o).margin_m == pytest.approx(0.02)
+    assert min_time_settings(o, F1TENTH_GYM).margin_m == pytest.approx(0.02)
+    assert min_time_settings(o, REAL_CAR_IDENTIFIED).margin_m == pytest.approx(0.05)
+    # the request the tools solve is the one the planner loads (the same cache key)
+    settings = PlannerSettings(raceline=o)
+    assert raceline_request(settings, REAL_CAR_IDENTIFIED).settings == min_time_settings(
+        o, REAL_CAR_IDENTIFIED)
+    assert raceline_request(settings).settings.margin_m == pytest.approx(0.02)
+
+
+def test_each_pose_source_adds_its_own_margin() -> None:
+    settings = PlannerSettings(raceline=RacelineSettings(ekf_margin_m=0.01, lidar_margin_m=0.03))
+    assert for_pose_source(settings, "truth") is settings
+    assert for_pose_source(settings, "ekf").raceline.min_time_margin_m == pytest.approx(0.03)
+    lidar = for_pose_source(settings, "lidar")
+    assert lidar.raceline.min_time_margin_m == pytest.approx(0.05)
+    assert lidar.raceline.lidar_margin_m == 0.03  # the rest is the same
+    assert lidar.model_copy(update={"raceline": settings.raceline}) == settings
+    assert min_time_settings(lidar.raceline, REAL_CAR_IDENTIFIED).margin_m == pytest.approx(
+        0.05 + settings.raceline.servo_margin_m)
+    assert set(POSE_MARGINS) == {"truth", "ekf", "lidar"}
+    with pytest.raises(ValueError, match="unknown pose source"):
+        for_pose_source(settings, "gps")
+    plain = PlannerSettings()
+    assert all(for_pose_source(plain, p) is plain
+               for p in POSE_MARGINS if not getattr(plain.raceline, f"{p}_margin_m", 0.0))
+
+
+def _circle_planner(**raceline):
+    from services.planner.raceline.planner import RacelinePlanner
+    from tests.planner.test_raceline import circle, circle_lap
+
+    tr = circle(3.0, n=300, width=0.6)
+    settings = PlannerSettings(method="raceline", raceline=RacelineSettings(**raceline))
+    return RacelinePlanner(tr, settings, min_time_loader=lambda t, v, s: circle_lap(
+        t, 3.0, 3.5, 0.15))
+
+
+def _rear_axle_at(planner, s: float, offset_m: float = 0.0) -> tuple[float, float, float]:
+    import math
+
+    rl = planner.raceline
+    cx, cy = rl.track.point_at(s)
+    yaw = rl.reference.at("yaw", s)
+    # offset_m to the left of the line (the circle's inside: its line runs 0.2 m outside)
+    cx, cy = cx - offset_m * math.sin(yaw), cy + offset_m * math.cos(yaw)
+    lr = planner.vehicle.lr_m
+    return cx - lr * math.cos(yaw), cy - lr * math.sin(yaw), yaw
+
+
+def test_a_car_on_its_line_keeps_the_plan_and_one_sliding_wide_slows_down() -> None:
+    planner = _circle_planner(grip_error_m=0.2, grip_step=0.05, grip_min_scale=0.8)
+    on_line = [planner.step(*_rear_axle_at(planner, 0.3 * k, 0.03 * (-1) ** k))
+               for k in range(20)]
+    assert planner.speed_scale == 1.0  # a few centimetres either side: the plan
+    full = on_line[-1].command.speed_mps
+    for k in range(20, 30):  # 0.25 m off the line: a slide
+        planner.step(*_rear_axle_at(planner, 0.3 * k, 0.25))
+    assert planner.speed_scale == pytest.approx(0.8)  # 0.95^10 = 0.60, held at the floor
+    slow = planner.step(*_rear_axle_at(planner, 0.3 * 31)).command.speed_mps
+    assert slow == pytest.approx(0.8 * full, rel=0.05)
+    planner.reset()
+    assert planner.speed_scale == 1.0
+
+
+def test_joining_the_line_from_afar_is_no_slide_and_the_adaptation_can_be_off() -> None:
+    planner = _circle_planner(grip_error_m=0.2)
+    for k in range(10):  # starts 0.3 m off its line (the centreline start): joining
+        planner.step(*_rear_axle_at(planner, 0.3 * k, 0.3))
+    assert planner.speed_scale == 1.0
+    off = _circle_planner(grip_error_m=0.0)
+    for k in range(10):
+        off.step(*_rear_axle_at(off, 0.3 * k, 0.0))
+    for k in range(10, 20):
+        off.step(*_rear_axle_at(off, 0.3 * k, 0.3))
+    assert off.speed_scale == 1.0
+
+
+def test_the_tracker_at_full_scale_is_the_plan_itself() -> None:
+    planner = _circle_planner()
+    tracker = planner.tracker
+    x, y, yaw = 3.2, 0.1, 1.6
+    a = tracker.command(x, y, yaw, None)
+    b = tracker.command(x, y, yaw, None, speed_scale=1.0)
+    assert a == b
+    c = tracker.command(x, y, yaw, None, speed_scale=0.5)
+    assert c.speed_mps < a.speed_mps
