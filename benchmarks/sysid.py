@@ -19,6 +19,15 @@ delays: 10 ms), and which ones the run cannot tell ("not identifiable from this 
     python -m benchmarks.sysid [--duration 120] [--track builtin:paperlike]
         [--method cimpcc] [--cars identified,softer,grippier] [--drive]
 
+``--loop`` (implies ``--drive``): the loop closed, per car and ``--loop-tracks`` track: the
+drive, the fit, the identified car (``SysidResult.vehicle_overlay`` over ``base_for``: what
+``racestack sysid --out car.toml`` writes), the minimum-time lines the method races solved
+on the IDENTIFIED car (``services.planner.make_min_time_lap``, cached), then the method
+races the TRUE car in the simulator (``[simulator.vehicle]``) with the planner told the
+identified one, ``--laps`` flying laps after the out lap; printed: the mean lap over the
+TRUE car's limit (its own minimum-time lap, cached) and the off-track events (out lap
+included). ``--with-true`` also races the planner told the true car (the method's own gap).
+
 ``--drive``: instead of racing, the identification drive (``racestack sysid --drive``'s
 programme, ``shared.vehicle.sysid_drive``: 50 s of speed steps, 35 s of steering steps,
 95 s of cornering at a rising lateral acceleration that stops at the saturation it sees)
@@ -38,10 +47,13 @@ import numpy as np
 from services.planner import PlannerPool, laps_of, make_min_time_lap, request_for
 from services.simulator.dynamics import friction_accel_limit
 from services.tools.bench import LoopOptions, SimulatorPlant, race
+from services.tools.bench.closed_loop import run_method
+from services.tools.bench.run import min_time_reference
 from services.tools.sysid_drive import SignalTap, report_line, run_drive
 from shared.config import RacestackConfig, config_from_dict
-from shared.config.methods import CIMPCC, planner_methods
+from shared.config.methods import CIMPCC, RACELINE, planner_methods
 from shared.config.vehicle import DynamicVehicleParams, vehicle_preset
+from shared.evaluation import results_document
 from shared.track import load_track
 from shared.vehicle.identification import SysidResult, identify
 
@@ -69,6 +81,10 @@ CARS: dict[str, dict[str, Any]] = {
         "speed_gain_brake_per_s": 19.02 * 1.35,
     },
 }
+#: The tracks of ``--loop``: map416 (../shared/tracks) and the built-in paperlike.
+LOOP_TRACKS = "../shared/tracks/map416,builtin:paperlike"
+#: An estimate's uncertainty is honest when its error is within this many sigmas.
+HONEST_Z = 3.0
 #: The neutral start of the tyre fit (B, C, D) per axle.
 NEUTRAL_BCD = (10.0, 1.5, 1.0)
 
@@ -90,11 +106,62 @@ def base_for(true: DynamicVehicleParams) -> DynamicVehicleParams:
         "pacejka_rear": (*NEUTRAL_BCD, true.pacejka_rear[3])})
 
 
+def _table(car: DynamicVehicleParams) -> dict[str, Any]:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in car.model_dump().items()}
+
+
 def config_of(true: DynamicVehicleParams) -> RacestackConfig:
     """The configuration that races `true` (the planners told the car)."""
-    veh = true.model_dump()
-    veh = {k: list(v) if isinstance(v, tuple) else v for k, v in veh.items()}
-    return config_from_dict({"vehicle": veh})
+    return config_from_dict({"vehicle": _table(true)})
+
+
+def identified_table(result: SysidResult, base: DynamicVehicleParams) -> dict[str, Any]:
+    """The ``[vehicle]`` table of the identified car: `base` with the fit's overlay (what
+    ``racestack sysid --out car.toml`` writes over its base configuration)."""
+    veh = _table(base)
+    veh.update(result.vehicle_overlay(base))
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in veh.items()}
+
+
+def loop_config(identified: dict[str, Any], true: DynamicVehicleParams) -> RacestackConfig:
+    """The planners told the `identified` car, the simulator racing the `true` one."""
+    return config_from_dict({"vehicle": identified, "simulator": {"vehicle": _table(true)}})
+
+
+def race_identified(cfg: RacestackConfig, track_spec: str, method: str, laps: int
+                    ) -> dict[str, Any]:
+    """Race `method` (told ``cfg.vehicle``) against the simulator's car
+    (``cfg.simulator.vehicle``) on `track_spec`: the lines solved on the told car first
+    (cached), then `laps` flying laps after the out lap. Returns the mean flying lap [s],
+    the true car's limit [s] and their ratio, off-track events (all / in the out lap),
+    laps completed, the wall times of the lines and the race [s]."""
+    track = load_track(track_spec)
+    t0 = time.perf_counter()
+    for use in laps_of(method, cfg.planner):  # the lines of the identified car
+        make_min_time_lap(track, *request_for(use, cfg.planner, cfg.vehicle), use=use,
+                          progress=None)
+    ref = min_time_reference(track, cfg)  # the true car's limit
+    t1 = time.perf_counter()
+    planner = PlannerPool(track, cfg.vehicle).planner(cfg.planner, method, cfg.curvature)
+    run = run_method(method, planner, track, cfg.simulator, LoopOptions(laps=laps))
+    entry = results_document(track.name, track.length_m, [run], reference=ref)
+    rec = entry["methods"][method]
+    mean = rec["lap_time_s"]["mean"]
+    return {"mean_lap_s": mean, "limit_s": None if ref is None else ref["min_time_lap_s"],
+            "ratio": rec.get("ratio_to_min_time"), "off_track": run.run_off_track_events,
+            "off_track_out_lap": run.out_lap_off_track_events, "laps": run.completed_laps,
+            "lines_wall_s": t1 - t0, "race_wall_s": time.perf_counter() - t1}
+
+
+def loop_line(who: str, track_spec: str, got: dict[str, Any]) -> str:
+    """One printed line of a loop race."""
+    ratio = "-" if got["ratio"] is None else f"{got['ratio']:.3f}"
+    mean = "-" if got["mean_lap_s"] is None else f"{got['mean_lap_s']:.3f}"
+    limit = "-" if got["limit_s"] is None else f"{got['limit_s']:.3f}"
+    return (f"  {who:22s} {track_spec:22s} mean lap {mean} s / true limit {limit} s = "
+            f"{ratio} (target <= 1.03); off-track {got['off_track']} "
+            f"({got['off_track_out_lap']} in the out lap); {got['laps']} laps; lines "
+            f"{got['lines_wall_s']:.0f} s, race {got['race_wall_s']:.0f} s wall")
 
 
 def record_drive(cfg: RacestackConfig, track_spec: str, method: str, duration_s: float
@@ -179,8 +246,8 @@ def tolerance(name: str) -> tuple[float, bool]:
 def table(name: str, result: SysidResult, true: dict[str, float]) -> tuple[list[str], int, int]:
     """The printed rows of one car; (rows, within tolerance, identifiable)."""
     rows = [f"  {'parameter':28s} {'true':>9s} {'estimate':>10s} {'+- 1 sigma':>10s} "
-            f"{'error':>8s}  within  identifiable"]
-    good = told = 0
+            f"{'error':>8s} {'err/sig':>7s}  within  identifiable"]
+    good = told = honest = 0
     for key, e in result.estimates.items():
         t = true.get(key, math.nan)
         tol, absolute = tolerance(key)
@@ -189,11 +256,15 @@ def table(name: str, result: SysidResult, true: dict[str, float]) -> tuple[list[
         err_txt = f"{1e3 * err:+7.1f}ms" if key.endswith("_s") and absolute else \
             f"{1e3 * err:+6.1f}mrad" if absolute else f"{100 * err / t:+7.1f}%"
         sig = f"{e.sigma:.3g}" if math.isfinite(e.sigma) else "inf"
+        z = abs(err) / e.sigma if e.sigma > 0 and math.isfinite(e.sigma) else math.nan
+        honest += e.identifiable and z <= HONEST_Z
         ident = "yes" if e.identifiable else f"NO: not identifiable from this run ({e.note})"
-        rows.append(f"  {key:28s} {t:9.4g} {e.value:10.4g} {sig:>10s} {err_txt:>8s}  "
+        rows.append(f"  {key:28s} {t:9.4g} {e.value:10.4g} {sig:>10s} {err_txt:>8s} {z:7.1f}  "
                     f"{'yes' if within else 'NO ':6s}  {ident}")
         good += within and e.identifiable
         told += e.identifiable
+    rows.append(f"  sigma honest (|error| <= {HONEST_Z:g} sigma): {honest} of {told} "
+                "identifiable parameters")
     return rows, good, told
 
 
@@ -208,7 +279,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--drive", action="store_true", help="record the identification drive "
                     "(racestack sysid --drive's programme, ~3 minutes) instead of racing; "
                     "--duration and --method are then not used")
+    ap.add_argument("--loop", action="store_true", help="close the loop (implies --drive): "
+                    "the identified car's minimum-time lines, then --loop-method races the "
+                    "true car told the identified one on --loop-tracks (default off)")
+    ap.add_argument("--loop-method", default=RACELINE, choices=planner_methods(),
+                    help=f"the near-limit method of --loop (default {RACELINE})")
+    ap.add_argument("--loop-tracks", default=LOOP_TRACKS,
+                    help=f"the tracks of --loop (default {LOOP_TRACKS})")
+    ap.add_argument("--laps", type=int, default=3,
+                    help="flying laps of each --loop race after the out lap (default 3)")
+    ap.add_argument("--with-true", action="store_true", help="--loop also races the planner "
+                    "told the true car (the method's own gap to the limit; default off)")
     args = ap.parse_args(argv)
+    args.drive = args.drive or args.loop
     for name in args.cars.split(","):
         true = car(name)
         cfg = config_of(true)
@@ -234,6 +317,17 @@ def main(argv: list[str] | None = None) -> int:
               f"{result.fit_info['windows']} windows ({result.fit_info['windows_dropped']} "
               "dropped)")
         sys.stdout.flush()
+        if args.loop:
+            ident = identified_table(result, base_for(true))
+            print(f"  the loop: {args.loop_method} told the identified car, racing the true "
+                  f"car ({args.laps} flying laps)")
+            for spec in args.loop_tracks.split(","):
+                got = race_identified(loop_config(ident, true), spec, args.loop_method,
+                                      args.laps)
+                print(loop_line("told the identified car", spec, got), flush=True)
+                if args.with_true:
+                    got = race_identified(cfg, spec, args.loop_method, args.laps)
+                    print(loop_line("told the true car", spec, got), flush=True)
     return 0
 
 

@@ -55,7 +55,10 @@ sits at the grid's edge, or whose effect the run never shows (a rate limit never
 friction never used up, an acceleration limit never hit) is reported as not identifiable
 from this run; its value is then a bound or the base car's, and an overlay keeps the base.
 A Pacejka B and C correlated beyond ``BC_CORRELATION_MAX`` are not identifiable each (only
-their product is): the overlay writes them as fitted, since the product holds.
+their product is): the overlay writes them as fitted, since the product holds. A Pacejka D
+whose friction the run never used up is not identifiable either, but when the curve below
+the peak still tells it (relative sigma within ``IDENTIFIABLE_REL_SIGMA``) the overlay
+writes the fit too, an extrapolation (the base car's neutral guess would be worse).
 
 Bad input raises ``SysidError`` with one line naming what is missing (too short, no
 cornering, a signal absent or too sparse).
@@ -103,6 +106,8 @@ MAX_WINDOWS = 160
 #: with D) is told; each is then "not identifiable" but written as fitted (the product holds).
 BC_CORRELATION_MAX = 0.9
 PRODUCT_ONLY = "only B*C is told"
+#: The note of a friction parameter the run never used up (module docstring).
+FRICTION_UNUSED = "friction never used up"
 #: Finite-difference step of the windows' initial slip angles [rad].
 BETA0_STEP_RAD = 1e-4
 #: Pass 2 of the tyre fit drops windows whose rms residual exceeds this x the median.
@@ -173,7 +178,7 @@ class SysidResult:
         """The ``[vehicle]`` fields of the identified car: the identifiable estimates, the
         base car's values for the rest (``tyre_model`` the fitted model)."""
         e = {k: v for k, v in self.estimates.items()
-             if v.identifiable or v.note.startswith(PRODUCT_ONLY)}
+             if v.identifiable or v.note.startswith(PRODUCT_ONLY) or _extrapolated_d(v)}
         out: dict[str, Any] = {"tyre_model": self.model}
         if base.preset != "f1tenth_gym":
             out["preset"] = base.preset
@@ -204,6 +209,14 @@ class SysidResult:
                         coeffs[i] = _round(est.value)
                 out[f"pacejka_{axle}"] = coeffs
         return out
+
+
+def _extrapolated_d(e: Estimate) -> bool:
+    """A Pacejka D the run never used up but whose curve below the peak tells it (its
+    relative sigma within ``IDENTIFIABLE_REL_SIGMA``): the overlay writes the fit, since
+    the base car's guess (the neutral 1.0) would tell the planner far more grip."""
+    return (e.name.endswith("_D") and e.note.startswith(FRICTION_UNUSED)
+            and math.isfinite(e.sigma) and e.sigma <= IDENTIFIABLE_REL_SIGMA * abs(e.value))
 
 
 def _round(x: float) -> float:
@@ -765,7 +778,7 @@ def fit_tyres(
         if theta[i] <= lo[i] + 1e-9 or theta[i] >= hi[i] - 1e-9:
             note = "at its search bound"
         elif (name == "mu" or name.endswith("_D")) and sat_share < 0.005:
-            note = f"friction never used up ({100 * sat_share:.1f} % of the samples at it)"
+            note = f"{FRICTION_UNUSED} ({100 * sat_share:.1f} % of the samples at it)"
         elif name[-2:] in ("_B", "_C"):
             j = i + 1 if name.endswith("_B") else i - 1  # its partner C or B
             rho = float(abs(corr[i, j]))

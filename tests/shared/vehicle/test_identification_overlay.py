@@ -1,0 +1,41 @@
+"""The identified car's ``[vehicle]`` overlay: which estimates it writes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from shared.config.vehicle import vehicle_preset
+from shared.vehicle.identification import (
+    FRICTION_UNUSED,
+    PRODUCT_ONLY,
+    Estimate,
+    SysidResult,
+)
+
+BASE = vehicle_preset("f1tenth_gym", tyre_model="pacejka", mu=1.0,
+                      pacejka_front=(10.0, 1.5, 1.0, 0.373), pacejka_rear=(10.0, 1.5, 1.0, 0.0))
+
+
+def _result(**notes: tuple[float, float, bool, str]) -> SysidResult:
+    est = {k: Estimate(k, v, s, ok, "", note) for k, (v, s, ok, note) in notes.items()}
+    return SysidResult("pacejka", est, 60.0, np.zeros(2))
+
+
+def test_a_friction_never_used_up_but_told_by_the_curve_is_written() -> None:
+    """The neutral base D (1.0) would tell the planner twice the grip of a 0.46 g car."""
+    res = _result(pacejka_rear_D=(0.46, 0.001, False, f"{FRICTION_UNUSED} (0.3 % ...)"),
+                  pacejka_front_D=(0.49, 0.5, False, f"{FRICTION_UNUSED} (0.3 % ...)"))
+    out = res.vehicle_overlay(BASE)
+    assert out["pacejka_rear"][2] == 0.46
+    assert out["pacejka_front"][2] == 1.0  # sigma beyond the identifiable share: the base's
+
+
+def test_b_and_c_of_a_told_product_are_written_and_the_rest_keeps_the_base() -> None:
+    res = _result(pacejka_rear_B=(14.0, 1.0, False, f"{PRODUCT_ONLY} (0.99)"),
+                  pacejka_rear_C=(1.8, 0.2, False, f"{PRODUCT_ONLY} (0.99)"),
+                  pacejka_front_B=(3.0, math.inf, False, "at its search bound"))
+    out = res.vehicle_overlay(BASE)
+    assert out["pacejka_rear"][:2] == [14.0, 1.8]
+    assert out["pacejka_front"][0] == 10.0

@@ -1,0 +1,42 @@
+"""benchmarks.sysid's loop: the planner told the identified car, the simulator the true
+one; the table's honesty count (no racing, no fit: the helpers only)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchmarks import sysid as bench
+from shared.vehicle.identification import Estimate, SysidResult
+
+
+def _fitted(rear_d: float) -> SysidResult:
+    est = {"pacejka_rear_D": Estimate("pacejka_rear_D", rear_d, 0.001, True),
+           "speed_gain_accel_per_s": Estimate("speed_gain_accel_per_s", 4.0, 0.01, True)}
+    return SysidResult("pacejka", est, 180.0, np.zeros(2))
+
+
+def test_the_loop_tells_the_planner_the_identified_car_and_simulates_the_true_one() -> None:
+    true = bench.car("softer")
+    base = bench.base_for(true)
+    ident = bench.identified_table(_fitted(0.45), base)
+    cfg = bench.loop_config(ident, true)
+    assert cfg.vehicle.pacejka_rear[2] == 0.45
+    assert cfg.vehicle.speed_gain_accel_per_s == 4.0
+    assert cfg.vehicle.pacejka_front[:3] == bench.NEUTRAL_BCD  # not fitted: the base's
+    assert cfg.simulator.vehicle == true
+
+
+def test_the_table_counts_estimates_within_three_sigmas() -> None:
+    res = _fitted(0.45)
+    rows, good, told = bench.table("x", res, {"pacejka_rear_D": 0.4635,
+                                             "speed_gain_accel_per_s": 4.0})
+    # rear D: -2.9 %, within its 5 % but 13.5 sigmas off (not honest); the gain: exact
+    assert told == 2 and good == 2
+    assert rows[-1].strip().startswith("sigma honest") and "1 of 2" in rows[-1]
+
+
+def test_a_loop_line_names_the_ratio_and_the_off_track_events() -> None:
+    got = {"mean_lap_s": 8.4, "limit_s": 8.1, "ratio": 8.4 / 8.1, "off_track": 3,
+           "off_track_out_lap": 3, "laps": 3, "lines_wall_s": 1.0, "race_wall_s": 2.0}
+    line = bench.loop_line("told the identified car", "map416", got)
+    assert "1.037" in line and "off-track 3 (3 in the out lap)" in line
