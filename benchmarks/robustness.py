@@ -10,7 +10,8 @@ The matrix (``--tracks``, ``--cars``, ``--poses`` narrow it):
 - tracks: map416 and paperlike (``builtin``), the six F1TENTH maps of ``../shared/tracks``
   (``f1tenth``), the generated measuring tracks ``gen:N`` for N in
   ``shared.track.generator.GENERATED_SEEDS`` (``generated``; never the tuning seeds);
-- cars (``CARS``): ``default`` (the F1TENTH gym's car, ``linear_saturated`` tyres),
+- cars (``CARS`` of ``shared.evaluation.car_family``, shared with ``racestack tune``): ``default``
+  (the F1TENTH gym's car, ``linear_saturated`` tyres),
   ``linear`` (the gym's own unbounded linear tyres), ``identified`` (the identified car with
   Pacejka tyres, the planners told its car) and ``identified-on-default`` (the simulator races
   the identified car, the planners keep the default car: a model mismatch);
@@ -86,9 +87,15 @@ from shared.config import RacestackConfig, config_from_dict
 from shared.config.methods import CIMPCC, CIMPCC_LINE, METHODS, RACELINE
 from shared.config.vehicle import DynamicVehicleParams
 from shared.evaluation import MethodRun, results_document, write_results
+from shared.evaluation.car_family import CARS, DEFAULT_CARS  # the family, one definition
+from shared.evaluation.spins import (
+    SPIN_MIN_DURATION_S,
+    SPIN_SLIP_FACTOR,
+    rear_peak_slip_rad,
+    spin_events,
+)
 from shared.track import Track, load_track
 from shared.track.generator import GENERATED_SEEDS
-from shared.vehicle.tyres import pacejka_peak_slip_rad
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The shared track data (map416, the F1TENTH maps).
@@ -97,15 +104,6 @@ TRACKS_DIR = ROOT.parent / "shared" / "tracks"
 F1TENTH_MAPS = ("Austin", "Monza", "Oschersleben", "Silverstone", "Spielberg", "YasMarina")
 #: The near-limit methods (the default ``--methods``).
 NEAR_LIMIT_METHODS = (CIMPCC_LINE, RACELINE)
-#: A spin: the rear slip angle beyond ``SPIN_SLIP_FACTOR`` x the tyres' peak slip for longer
-#: than this [s].
-SPIN_MIN_DURATION_S = 0.2
-#: The margin over the peak slip a spin needs. ``linear_saturated`` tyres keep their force flat
-#: beyond the peak, so cornering at the friction limit holds the rear slip just past it: clean
-#: laps (no off-track event, no recovery) on map416 and paperlike reach 1.04-1.28 x the peak for
-#: seconds, while the laps that spin off the track reach 18 x (python -m benchmarks.robustness
-#: --tracks map416,paperlike --cars default,identified --poses truth, 2026-12-02).
-SPIN_SLIP_FACTOR = 1.5
 #: The ``--quick`` subset.
 QUICK_TRACKS = ("map416", "paperlike", *(f"gen:{s}" for s in GENERATED_SEEDS[:2]))
 QUICK_CARS = ("default", "identified")
@@ -123,44 +121,6 @@ MISMATCH_RATIO_TARGET = 1.15
 MATRIX_WALL_TARGET_S = 30 * 60.0
 
 
-@dataclass(frozen=True)
-class CarSpec:
-    """One car of the matrix: the configuration tables that make it and whether the planners
-    are told the car the simulator races.
-
-    Attributes:
-        name: the car's name in the matrix (``--cars``).
-        tables: ``[vehicle]`` and, for a mismatch, ``[simulator.vehicle]`` (a config dict).
-        knows_car: the planners' ``[vehicle]`` is the simulated car.
-        summary: one line for ``--help`` and the table's legend.
-    """
-
-    name: str
-    tables: dict[str, Any]
-    knows_car: bool
-    summary: str
-
-
-_IDENTIFIED = {"preset": "real_car_identified"}
-_DEFAULT = {"preset": "f1tenth_gym"}
-#: Every car the benchmark knows; ``DEFAULT_CARS`` are the matrix's.
-CARS: dict[str, CarSpec] = {
-    c.name: c
-    for c in (
-        CarSpec("default", {}, True, "the F1TENTH gym's car, linear_saturated tyres"),
-        CarSpec("linear", {"vehicle": {"tyre_model": "linear"}}, True,
-                "the gym's linear (unbounded) tyres, the planners told"),
-        CarSpec("identified", {"vehicle": _IDENTIFIED}, True,
-                "the identified car (Pacejka), the planners told its car"),
-        CarSpec("identified-on-default",
-                {"vehicle": _DEFAULT, "simulator": {"vehicle": _IDENTIFIED}}, False,
-                "the identified car simulated, the planners on the default car"),
-        CarSpec("linear-on-default",
-                {"vehicle": _DEFAULT, "simulator": {"vehicle": {"tyre_model": "linear"}}},
-                False, "linear tyres simulated, the planners on the default car"),
-    )
-}
-DEFAULT_CARS = ("default", "linear", "identified", "identified-on-default")
 
 
 # ------------------------------------------------------------------------- the matrix
@@ -263,24 +223,6 @@ class Matrix:
 
 
 # ------------------------------------------------------------------ the cell's figures
-def rear_peak_slip_rad(car: DynamicVehicleParams, lap: MinTimeLap | None = None) -> float:
-    """The slip angle [rad] at which the rear tyres give their peak lateral force: the
-    magic formula's peak (``pacejka``), else ``1 / C_Sr``, where ``mu C_Sr F_z alpha``
-    reaches ``mu F_z`` (``linear_saturated``'s clip).
-
-    The gym's unbounded ``linear`` tyres have no peak: their force grows with the slip, and
-    the car's own minimum-time lap (no friction limit, ``mintime.ocp``) asks for 3.6 x
-    ``1 / C_Sr`` at the rear in the hairpins of gen:1 and gen:3. For them the reference is the
-    largest rear slip of that lap (`lap`, the car's limit; ``lap_rear_slip_rad``) when it is
-    larger: a spin is then a slide well beyond what racing at the car's limit needs."""
-    if car.tyre_model == "pacejka":
-        return pacejka_peak_slip_rad(car, "rear")
-    peak = 1.0 / car.cornering_stiffness_rear_per_rad
-    if car.tyre_model == "linear" and lap is not None:
-        return max(peak, lap_rear_slip_rad(lap, car))
-    return peak
-
-
 def lap_rear_slip_rad(lap: MinTimeLap, car: DynamicVehicleParams) -> float:
     """The largest |rear slip angle| [rad] of a minimum-time lap of `car`: ``alpha_r =
     atan(tan(beta) - l_r r / (v cos(beta)))`` at its nodes (``mintime.model.STATE_NAMES``)."""
@@ -288,31 +230,6 @@ def lap_rear_slip_rad(lap: MinTimeLap, car: DynamicVehicleParams) -> float:
     v, beta, r = x[:, V_MPS], x[:, BETA], x[:, R_RADPS]
     alpha = np.arctan(np.tan(beta) - car.lr_m * r / (np.maximum(v, 1e-3) * np.cos(beta)))
     return float(np.abs(alpha).max())
-
-
-def spin_events(
-    t_s: Iterable[float],
-    slip_rad: Iterable[float],
-    peak_rad: float,
-    min_duration_s: float = SPIN_MIN_DURATION_S,
-    factor: float = SPIN_SLIP_FACTOR,
-) -> int:
-    """Times |slip| stayed beyond `factor` x `peak_rad` for more than `min_duration_s` [s].
-
-    A run of samples beyond the peak lasts from its first sample to the next sample after
-    it (the last run of the trace: one median sample period past its last sample)."""
-    t = np.asarray(list(t_s), dtype=float)
-    over = np.abs(np.asarray(list(slip_rad), dtype=float)) > factor * peak_rad
-    if t.size == 0 or over.size != t.size or not over.any():
-        return 0
-    period = float(np.median(np.diff(t))) if t.size > 1 else 0.0
-    edges = np.diff(np.concatenate([[0], over.astype(np.int8), [0]]))
-    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # ends exclusive
-    count = 0
-    for a, b in zip(starts, ends, strict=True):
-        t_end = t[b] if b < t.size else t[-1] + period
-        count += bool(t_end - t[a] > min_duration_s + 1e-9)
-    return count
 
 
 def method_record(run: MethodRun, entry: dict[str, Any], peak_rad: float) -> dict[str, Any]:
@@ -438,7 +355,9 @@ def _setup(track_spec: str, car: str, v_max: float | None):
         with contextlib.redirect_stderr(said):
             ref = min_time_reference(track, cfg)
         note = "" if ref is not None else said.getvalue().strip().splitlines()[-1]
-        peak = rear_peak_slip_rad(cfg.simulator.vehicle, _limit_lap(track, cfg))
+        limit = _limit_lap(track, cfg)
+        lap_slip = None if limit is None else lap_rear_slip_rad(limit, cfg.simulator.vehicle)
+        peak = rear_peak_slip_rad(cfg.simulator.vehicle, lap_slip)
         _SETUPS[key] = (track, cfg, PlannerPool(track, cfg.vehicle), ref, note, peak)
     return _SETUPS[key]
 

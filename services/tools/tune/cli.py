@@ -3,15 +3,20 @@
     racestack tune --method cimpcc --track paperlike --trials 40 --out DIR
                    [--storage URL] [--study NAME] [--config F] [--laps K] [--seeds 0,1,2]
                    [--margin M] [--pose-noise X] [--v-max V] [--seed S]
+    racestack tune --method raceline --tracks gen:1001,gen:1002 --cars default,identified
+                   --aggregate worst --out DIR ...
 
 Each trial races the method with one point of its search space (``services.tools.tune.search``)
-over ``--laps`` timed laps for each noise seed (``services.tools.tune.evaluate``); the objective is
-the mean lap time, and a trial that leaves the track, needs the recovery rule, comes closer
-than ``--margin`` to a boundary or misses a lap is infeasible. Optuna's seeded TPE sampler
-proposes the points; the first trial is the configuration's own point (the baseline). The
-study lives in ``--storage`` (default ``sqlite:///DIR/study.db``): run the same command
-again to resume it, or in several processes to share it (give each its own ``--seed``).
-Writes DIR/best.toml, DIR/trials.json, DIR/trials.csv and DIR/history.png (see
+over ``--laps`` timed laps for each noise seed (``services.tools.tune.evaluate``) in every cell
+of the family, each track of ``--tracks`` with each car of ``--cars``
+(``services.tools.tune.family``); the objective is the mean lap time (one cell) or the worst or
+mean ratio of a cell's mean lap to its car's minimum-time lap (several cells), and a trial that
+leaves the track, needs the recovery rule, spins, drives a lap below the minimum-time lap,
+comes closer than ``--margin`` to a boundary or misses a lap is infeasible. Optuna's seeded TPE
+sampler proposes the points; the first trial is the configuration's own point (the baseline).
+The study lives in ``--storage`` (default ``sqlite:///DIR/study.db``): run the same command
+again to resume it, or in several processes to share it (give each its own ``--seed``). Writes
+DIR/best.toml, DIR/trials.json, DIR/trials.csv and DIR/history.png (see
 ``services.tools.tune.output``). Ctrl-C stops after telling the running trial FAILED and writes
 everything from the trials finished so far.
 
@@ -34,8 +39,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from services.tools.tune.evaluate import Evaluator, ObjectiveSettings
+from services.planner import MinTimeError
+from services.tools.tune.evaluate import ObjectiveSettings
+from services.tools.tune.family import FamilyCell, FamilyEvaluator, cell_config, limit_lap_s
 from services.tools.tune.search import (
+    AGGREGATES,
+    CONSTRAINTS,
     PENALTY_S,
     SearchSpace,
     UnknownMethodError,
@@ -44,6 +53,7 @@ from services.tools.tune.search import (
     tunable_methods,
 )
 from shared.config import ConfigError, load_config
+from shared.evaluation.car_family import CARS, UnknownCarError, car_names
 from shared.outdir import writable_dir_problem
 from shared.track import TRACK_SPEC_HELP, Track, TrackError, load_track
 
@@ -62,6 +72,16 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap = ap or argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     ap.add_argument("--method", required=True, help=f"one of {', '.join(tunable_methods())}")
     ap.add_argument("--track", help=f"{TRACK_SPEC_HELP} (default: the config's)")
+    ap.add_argument("--tracks", default=None,
+                    help="comma list of track specs to tune over, the family's tracks "
+                    "(default: --track alone)")
+    ap.add_argument("--cars", default="default",
+                    help=f"comma list of cars to tune over, of {', '.join(CARS)} (as the "
+                    "robustness benchmark's; default default)")
+    ap.add_argument("--aggregate", choices=AGGREGATES, default="worst",
+                    help="with several cells (tracks x cars), the objective is the worst or "
+                    "the mean ratio of a cell's mean lap to its minimum-time lap (default "
+                    "worst)")
     ap.add_argument("--trials", type=int, default=40,
                     help="the study's trial budget, all workers together (default 40)")
     ap.add_argument("--out", required=True, help="output folder (best.toml, trials, figure)")
@@ -144,10 +164,31 @@ def stop_signals(stop: GracefulStop) -> Iterator[None]:
             signal.signal(s, h)
 
 
+def _say(text: str) -> None:
+    print(f"{PROG}: {text}", file=sys.stderr, flush=True)
+
+
+def _family(args: argparse.Namespace, default_spec: str) -> tuple[list[str], list[str]]:
+    """The family's track specs and car names from --track / --tracks / --cars."""
+    if args.track and args.tracks:
+        raise TuneArgumentError("give --track or --tracks, not both")
+    if args.tracks is not None:
+        specs = list(dict.fromkeys(t.strip() for t in args.tracks.split(",") if t.strip()))
+        if not specs:
+            raise TuneArgumentError("--tracks names no track")
+    else:
+        specs = [args.track or default_spec]
+    try:
+        cars = car_names(args.cars)
+    except UnknownCarError as exc:
+        raise TuneArgumentError(f"--cars: {exc}") from None
+    return specs, cars
+
+
 def _prepare(
     args: argparse.Namespace,
-) -> tuple[SearchSpace, ObjectiveSettings, dict[str, Any], dict[str, Any], Track]:
-    """Validate everything before anything races: (space, settings, base data, meta, track)."""
+) -> tuple[SearchSpace, ObjectiveSettings, dict[str, Any], dict[str, Any], list[FamilyCell]]:
+    """Validate everything before anything races: (space, settings, base data, meta, cells)."""
     if args.method not in tunable_methods():
         raise UnknownMethodError(
             f"unknown method {args.method!r}; choose from {', '.join(tunable_methods())}"
@@ -167,34 +208,65 @@ def _prepare(
         raise
     except ValueError as exc:
         raise TuneArgumentError(str(exc)) from None
-    spec = args.track or cfg.track.source
-    track = load_track(spec)
-    tfp = track_fingerprint(track)
+    specs, cars = _family(args, cfg.track.source)
+    tracks = {spec: load_track(spec) for spec in specs}
+    cells = [FamilyCell(spec, tracks[spec], car) for spec in specs for car in cars]
+    family = len(cells) > 1
+    first = cells[0].track
+    fps = {spec: track_fingerprint(t) for spec, t in tracks.items()}
+    if len(specs) == 1 and cars == ["default"]:
+        name, tfp = first.name, fps[specs[0]]
+    else:
+        name = ",".join(t.name for t in tracks.values())
+        tfp = fingerprint([[fps[s] for s in specs], cars])
     meta = {
         "method": args.method,
-        "track": track.name,
+        "track": name,
         "track_fingerprint": tfp,
-        "track_source": track_source(spec, track),
-        "track_length_m": round(track.length_m, 3),
+        "track_source": track_source(specs[0], first),
+        "track_length_m": round(first.length_m, 3),
+        "tracks": [{"name": t.name, "source": track_source(s, t), "fingerprint": fps[s],
+                    "length_m": round(t.length_m, 3)} for s, t in tracks.items()],
+        "cars": cars,
+        "cells": [{"track": c.track.name, "car": c.car} for c in cells],
+        "aggregate": args.aggregate if family else None,
+        "value": f"{args.aggregate} ratio to the minimum-time lap" if family else "mean lap [s]",
+        "constraints": list(CONSTRAINTS),
         "objective": settings.to_json(),
         "v_max_mps": v_max,
         "config": fingerprint(base_data),
         "config_path": str(Path(args.config).resolve()) if args.config else None,
         "space": [p.__dict__ for p in space.params],
     }
-    return space, settings, base_data, meta, track
+    return space, settings, base_data, meta, cells
 
 
-def _line(t: Any, budget: int, names: list[str]) -> str:
+def _limits(cells: list[FamilyCell], base_data: dict[str, Any], v_max: float) -> list[float]:
+    """Each cell's minimum-time lap [s] (read from the cache, or solved once), a line each."""
+    limits = []
+    for cell in cells:
+        try:
+            lim, cached = limit_lap_s(cell.track, cell_config(base_data, cell.car), v_max,
+                                      progress=None if len(cells) == 1 else _say)
+        except MinTimeError as exc:
+            raise TuneArgumentError(
+                f"no minimum-time lap of car {cell.car} on {cell.track.name}: {exc}") from None
+        limits.append(lim)
+        _say(f"minimum-time lap of {cell.label}: {lim:.3f} s "
+             f"({'cached' if cached else 'solved, cached'})")
+    return limits
+
+
+def _line(t: Any, budget: int, names: list[str], unit: str = " s") -> str:
     ua = t.user_attrs
     pts = " ".join(f"{n}={t.params[n]:.3g}" for n in names if n in t.params)
     if t.state.name == "FAIL":
         what = f"FAILED: {ua.get('error', '')}"
     elif ua.get("feasible"):
-        what = f"{t.value:.3f} s"
+        what = f"{t.value:.3f}{unit}"
     else:
         lap = ua.get("mean_lap_s")
-        what = ("infeasible" + (f" ({lap:.3f} s)" if lap else "") + ": "
+        what = ("infeasible" + (f" ({lap:.3f}{unit})" if lap else "") + ": "
                 + "; ".join(ua.get("reasons", [])))
     return f"trial {t.number + 1:>3}/{budget}  {what}  [{pts}]  {ua.get('wall_s', 0):.1f} s"
 
@@ -203,14 +275,16 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
     """Run the tuning; see the module docstring for the exit codes."""
     args = args or build_parser().parse_args(argv)
     try:
-        space, settings, base_data, meta, track = _prepare(args)
+        space, settings, base_data, meta, cells = _prepare(args)
     except (TuneArgumentError, UnknownMethodError, ConfigError, TrackError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     out = Path(args.out)
     from services.tools.tune import study as st
 
-    name = args.study or st.study_name(args.method, track.name, meta["track_fingerprint"])
+    family = len(cells) > 1
+    name = args.study or st.study_name(args.method, "family" if family else meta["track"],
+                                       meta["track_fingerprint"])
     storage = args.storage or st.default_storage(out)
     meta |= {"study": name, "storage": storage}
     import optuna
@@ -220,20 +294,27 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
         check_out_dir(out, name, storage)
         study = st.open_study(storage, name, meta, args.seed, exclusive=not args.storage)
         st.enqueue_baseline(study, space.baseline(load_config(args.config)))
-        evaluator = Evaluator(space, track, base_data, settings)
+        limits = _limits(cells, base_data, meta["v_max_mps"])
+        for rec, lim in zip(meta["cells"], limits, strict=True):
+            rec["limit_s"] = lim
+        evaluator = FamilyEvaluator(space, cells, base_data, settings, limits, args.aggregate)
     except (TuneArgumentError, st.StudyMismatchError, ConfigError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     done, _ = st.finished_count(study)
     print(f"{PROG}: study {name!r} in {storage}: {done} of {args.trials} trials done; "
-          f"{args.laps} lap(s) x seeds {list(settings.seeds)}, margin {settings.margin_m:g} m",
+          f"{args.laps} lap(s) x seeds {list(settings.seeds)}, margin {settings.margin_m:g} m"
+          + (f"; {len(cells)} cells ({', '.join(c.label for c in cells)}), objective the "
+             f"{args.aggregate} ratio to the minimum-time lap" if family else ""),
           file=sys.stderr)
+    unit = "" if family else " s"
     names = space.names()
     t0 = time.perf_counter()
     stop = st.GracefulStop()
     with stop_signals(stop):
         rep = st.run_trials(study, space, evaluator, args.trials,
-                            lambda t: print(_line(t, args.trials, names), file=sys.stderr), stop)
+                            lambda t: print(_line(t, args.trials, names, unit), file=sys.stderr),
+                            stop, say=_say)
         wall = time.perf_counter() - t0
         if rep.interrupted:
             print(f"{PROG}: interrupted; writing what was found", file=sys.stderr)
@@ -253,7 +334,8 @@ def _write_outputs(study: Any, out: Path, base_data: dict, meta: dict, names: li
     doc = output.trials_document(meta, trials, best, names)
     output.write_history(out, doc, names, trials)
     output.plot_history(out / output.HISTORY_PNG, trials,
-                        f"racestack tune: {meta['method']} on {meta['track']} ({meta['study']})")
+                        f"racestack tune: {meta['method']} on {meta['track']} ({meta['study']})",
+                        ylabel=output.value_label(meta))
     if best is None:
         print(f"{PROG}: no feasible trial yet; no best.toml (see {out / output.TRIALS_CSV})",
               file=sys.stderr)
@@ -261,9 +343,16 @@ def _write_outputs(study: Any, out: Path, base_data: dict, meta: dict, names: li
     output.write_best(out, base_data, best, meta)
     base = [t for t in trials if t.user_attrs.get("baseline") and t.state.name == "COMPLETE"]
     vs = ""
+    ratio = len(meta.get("cells", [])) > 1
+    unit = "" if ratio else " s"
     if base and base[0].value is not None and base[0].value < PENALTY_S:
-        vs = f" (baseline {base[0].value:.3f} s, {100 * (best.value / base[0].value - 1):+.1f} %)"
-    print(f"best: trial {best.number}, mean lap {best.value:.3f} s{vs}")
+        vs = (f" (baseline {base[0].value:.3f}{unit}, "
+              f"{100 * (best.value / base[0].value - 1):+.1f} %)")
+    what = f"{meta['aggregate']} ratio to the minimum-time lap" if ratio else "mean lap"
+    print(f"best: trial {best.number}, {what} {best.value:.3f}{unit}{vs}")
+    for cell in best.user_attrs.get("cells", []) if ratio else []:
+        print(f"  {cell['track']}/{cell['car']}: mean lap {cell['mean_lap_s']:.3f} s, "
+              f"limit {cell['limit_s']:.3f} s, ratio {cell['ratio']:.4f}")
     for k, v in best.params.items():
         print(f"  {k} = {v:.4g}")
     print(f"written: {out / output.BEST}, {out / output.TRIALS_JSON}, "

@@ -47,6 +47,8 @@ from shared.config import RacestackConfig, config_from_dict
 from shared.config.planner import PlannerSettings
 from shared.curvature import CurvatureProfile
 from shared.evaluation import MethodRun
+from shared.evaluation.results import LIMIT_TOLERANCE_S
+from shared.evaluation.spins import rear_peak_slip_rad, spin_events
 from shared.track import Track
 
 #: The bench's start: this far past the start line [m]; each seed adds U(0, spread).
@@ -100,6 +102,8 @@ class TrialOutcome:
     seeds: tuple[SeedResult, ...]
     overlay: Overlay
     details: dict[str, Any] = field(default_factory=dict)
+    #: per cell of a family (``services.tools.tune.family``): track, car, limit, ratio, ...
+    cells: tuple[dict[str, Any], ...] = ()
 
 
 class RunAbortedError(RuntimeError):
@@ -197,6 +201,9 @@ class Evaluator:
         track: the track.
         base_data: the base configuration as TOML tables (``--config``, or {}).
         settings: how a trial is raced and judged.
+        limit_s: the simulated car's minimum-time lap on `track` [s]: a lap faster than it
+            (by more than ``LIMIT_TOLERANCE_S``) is counted (``below_limit_laps``); None:
+            not checked.
     """
 
     def __init__(
@@ -205,11 +212,13 @@ class Evaluator:
         track: Track,
         base_data: dict[str, Any],
         settings: ObjectiveSettings,
+        limit_s: float | None = None,
     ) -> None:
         self.space = space
         self.track = track
         self.base_data = base_data
         self.settings = settings
+        self.limit_s = limit_s
         self.base_cfg = config_from_dict(base_data, "--config")
         self._pool = PlannerPool(track, self.base_cfg.vehicle)
 
@@ -263,13 +272,19 @@ class Evaluator:
                 f"{exc} (after {done[0]} timed laps)",
             )
         half_width = 0.5 * sim.vehicle.width_m
+        laps = tuple(float(lap.lap_time_s) for lap in run.laps)
+        below = 0
+        if self.limit_s is not None:
+            below = sum(t < self.limit_s - LIMIT_TOLERANCE_S for t in laps)
         return SeedResult(
             seed,
-            tuple(float(lap.lap_time_s) for lap in run.laps),
+            laps,
             int(run.run_off_track_events),
             int(run.extra.get("recoveries", 0)),
             min_clearance_m(run, self.track, half_width),
             str(run.extra.get("aborted", "")),
+            spin_events(run.trace.t_s, run.trace.rear_slip_rad, rear_peak_slip_rad(sim.vehicle)),
+            int(below),
         )
 
     def __call__(self, params: Params) -> TrialOutcome:

@@ -54,6 +54,8 @@ def trial_row(t: FrozenTrial, names: Sequence[str]) -> dict[str, Any]:
         "laps": sum(len(s["lap_times_s"]) for s in seeds),
         "off_track_events": sum(s["off_track_events"] for s in seeds),
         "recoveries": sum(s["recoveries"] for s in seeds),
+        "spins": sum(s.get("spins", 0) for s in seeds),
+        "below_limit_laps": sum(s.get("below_limit_laps", 0) for s in seeds),
         "min_clearance_m": min(
             (s["min_clearance_m"] for s in seeds if s["min_clearance_m"] is not None),
             default=None,
@@ -65,6 +67,7 @@ def trial_row(t: FrozenTrial, names: Sequence[str]) -> dict[str, Any]:
         "wall_s": ua.get("wall_s"),
         "started": t.datetime_start.isoformat(timespec="seconds") if t.datetime_start else "",
         **{f"param_{n}": t.params.get(n) for n in names},
+        **{f"ratio_{c['track']}/{c['car']}": c.get("ratio") for c in ua.get("cells", [])},
     }
 
 
@@ -79,6 +82,7 @@ def trials_document(
         row["params"] = dict(t.params)
         row["seeds"] = t.user_attrs.get("seeds", [])
         row["overlay"] = t.user_attrs.get("overlay")
+        row["cells"] = t.user_attrs.get("cells", [])
         rows.append(row)
     return {
         "study": dict(meta),
@@ -87,6 +91,7 @@ def trials_document(
             "mean_lap_s": best.value,
             "params": dict(best.params),
             "overlay": best.user_attrs.get("overlay"),
+            "cells": best.user_attrs.get("cells", []),
         },
         "trials": rows,
     }
@@ -98,8 +103,8 @@ def write_history(out_dir: Path, doc: Mapping[str, Any], names: Sequence[str],
     _replace(out_dir / TRIALS_JSON, (json.dumps(doc, indent=1) + "\n").encode())
     rows = [trial_row(t, names) for t in trials]
     buf = io.StringIO()
-    fields = list(rows[0]) if rows else ["number", "state", "value"]
-    w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
+    fields = list(dict.fromkeys(k for r in rows for k in r)) or ["number", "state", "value"]
+    w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n", restval="")
     w.writeheader()
     for r in rows:
         w.writerow({k: "" if v is None else v for k, v in r.items()})
@@ -114,11 +119,16 @@ def best_config_text(
     data = deep_merge(base_data, overlay)
     data = deep_merge(data, {"track": {"source": meta["track_source"]}})
     obj = meta["objective"]
+    cells = [(c["track"], c["car"]) for c in meta.get("cells", [])]
     header = "\n".join(
         [
             f"racestack tune: best of study {meta['study']!r}, trial {best.number}",
-            f"mean lap {best.value:.3f} s over {obj['laps']} lap(s) x seeds {obj['seeds']}, "
-            f"no off-track event, body >= {obj['margin_m']:g} m inside the boundaries",
+            (f"{meta.get('aggregate')} ratio to the minimum-time lap {best.value:.4f} over "
+             f"{len(cells)} cells ({', '.join(f'{c[0]}/{c[1]}' for c in cells)})"
+             if len(cells) > 1 else f"mean lap {best.value:.3f} s")
+            + f" over {obj['laps']} lap(s) x seeds {obj['seeds']}, no off-track event, "
+            f"recovery, spin or lap below the limit, body >= {obj['margin_m']:g} m inside the "
+            "boundaries",
             f"method {meta['method']} on {meta['track']} ({meta['track_source']}); "
             f"written {time.strftime('%Y-%m-%d %H:%M:%S')}",
             "tuned keys: " + ", ".join(best.user_attrs.get("tuned_keys") or dotted(overlay)),
@@ -139,7 +149,15 @@ def write_best(out_dir: Path, base_data: Mapping[str, Any], best: FrozenTrial,
     return load_config(path)
 
 
-def plot_history(path: Path, trials: Sequence[FrozenTrial], title: str) -> None:
+def value_label(meta: Mapping[str, Any]) -> str:
+    """The y label of a study's values: the mean lap [s], or a family's ratio [1]."""
+    if len(meta.get("cells", [])) > 1:
+        return f"{meta.get('aggregate')} ratio to the minimum-time lap [1]"
+    return "mean lap time [s]"
+
+
+def plot_history(path: Path, trials: Sequence[FrozenTrial], title: str,
+                 ylabel: str = "mean lap time [s]") -> None:
     """``history.png``: mean lap per trial, best feasible so far, baseline."""
     import matplotlib
 
@@ -176,7 +194,7 @@ def plot_history(path: Path, trials: Sequence[FrozenTrial], title: str) -> None:
             ax.plot(ns, [hi] * len(ns), mark, color="0.3", ms=5, label=lab, clip_on=False)
     ax.set_ylim(lo, hi)
     ax.set_xlabel("trial")
-    ax.set_ylabel("mean lap time [s]")
+    ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:

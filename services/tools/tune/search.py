@@ -39,7 +39,12 @@ V_RATIO = 1.1
 #: Value [s] of a trial that drove no complete set of laps (it is infeasible anyway).
 PENALTY_S = 1000.0
 #: Names of a trial's constraints (Optuna ``Trial.set_constraint``; each <= 0 when met).
-CONSTRAINTS = ("off_track_events", "recoveries", "missing_laps", "margin_shortfall_m")
+CONSTRAINTS = (
+    "off_track_events", "recoveries", "missing_laps", "margin_shortfall_m", "spins",
+    "below_limit_laps",
+)
+#: How a family's cells make one objective (``family_score``): the worst or the mean ratio.
+AGGREGATES = ("worst", "mean")
 #: Significant digits kept of a searched weight (speeds: SPEED_DECIMALS decimals).
 SIGNIFICANT_DIGITS = 4
 SPEED_DECIMALS = 2
@@ -381,6 +386,8 @@ class SeedResult:
         min_clearance_m: the smallest distance of the car's body to a boundary [m] (the
             CoG's distance to the nearer boundary minus half the car's width), or None.
         aborted: why the run stopped early ("" when it ran to the end).
+        spins: times the rear slip stayed beyond its tyres' peak (``shared.evaluation.spins``).
+        below_limit_laps: laps faster than the car's minimum-time lap (a broken rule).
     """
 
     seed: int
@@ -389,6 +396,8 @@ class SeedResult:
     recoveries: int
     min_clearance_m: float | None
     aborted: str = ""
+    spins: int = 0
+    below_limit_laps: int = 0
 
     def to_json(self) -> dict[str, Any]:
         """The result as plain JSON values."""
@@ -399,6 +408,8 @@ class SeedResult:
             "recoveries": self.recoveries,
             "min_clearance_m": self.min_clearance_m,
             "aborted": self.aborted,
+            "spins": self.spins,
+            "below_limit_laps": self.below_limit_laps,
         }
 
 
@@ -408,14 +419,14 @@ class Score:
 
     Attributes:
         value: the objective [s] (mean lap, or PENALTY_S without a complete set of laps).
-        constraints: (off-track events, recoveries, missing laps, margin shortfall [m]);
-            each <= 0 when met.
+        constraints: (off-track events, recoveries, missing laps, margin shortfall [m],
+            spins, laps below the limit), as ``CONSTRAINTS``; each <= 0 when met.
         reasons: why the trial is infeasible, one phrase each (empty: feasible).
         mean_lap_s: the mean of the laps driven, or None.
     """
 
     value: float
-    constraints: tuple[float, float, float, float]
+    constraints: tuple[float, ...]
     reasons: tuple[str, ...]
     mean_lap_s: float | None
 
@@ -434,6 +445,8 @@ def is_infeasible(result: SeedResult, laps: int, margin_m: float) -> bool:
         or result.recoveries
         or len(result.lap_times_s) < laps
         or clearance_short
+        or result.spins
+        or result.below_limit_laps
     )
 
 
@@ -444,6 +457,8 @@ def score(results: Sequence[SeedResult], laps: int, n_seeds: int, margin_m: floa
     off = sum(r.off_track_events for r in results)
     rec = sum(r.recoveries for r in results)
     missing = sum(max(laps - len(r.lap_times_s), 0) for r in results)
+    spins = sum(r.spins for r in results)
+    below = sum(r.below_limit_laps for r in results)
     clear = [r.min_clearance_m for r in results if r.min_clearance_m is not None]
     min_clear = min(clear) if clear else None
     shortfall = margin_m - min_clear if min_clear is not None else margin_m
@@ -452,6 +467,10 @@ def score(results: Sequence[SeedResult], laps: int, n_seeds: int, margin_m: floa
         reasons.append(f"{off} off-track event(s)")
     if rec:
         reasons.append(f"{rec} recovery episode(s)")
+    if spins:
+        reasons.append(f"{spins} spin(s)")
+    if below:
+        reasons.append(f"{below} lap(s) below the minimum-time lap")
     if missing > 0:
         reasons.append(f"{missing} of {laps * len(results)} laps missing")
     if shortfall > 0 and min_clear is not None:
@@ -464,5 +483,58 @@ def score(results: Sequence[SeedResult], laps: int, n_seeds: int, margin_m: floa
         reasons.append(f"{n_seeds - len(results)} seed(s) skipped")
     mean = sum(times) / len(times) if times else None
     value = mean if (mean is not None and missing == 0) else PENALTY_S
-    constraints = (float(off), float(rec), float(missing), float(shortfall))
+    constraints = (float(off), float(rec), float(missing), float(shortfall), float(spins),
+                   float(below))
     return Score(float(value), constraints, tuple(reasons), mean)
+
+
+@dataclass(frozen=True)
+class CellScore:
+    """One cell of a family (a track and a car): its score and its limit.
+
+    Attributes:
+        track: the track's name.
+        car: the car's name (``shared.config.cars.CARS``).
+        score: the cell's own score (``score``; its value the mean lap [s]).
+        limit_s: the simulated car's minimum-time lap on the track [s].
+    """
+
+    track: str
+    car: str
+    score: Score
+    limit_s: float
+
+    @property
+    def ratio(self) -> float | None:
+        """Mean lap / the minimum-time lap, or None without a complete set of laps."""
+        sc = self.score
+        if sc.mean_lap_s is None or sc.constraints[2] > 0:
+            return None
+        return sc.mean_lap_s / self.limit_s
+
+
+def family_score(cells: Sequence[CellScore], n_cells: int, aggregate: str) -> Score:
+    """One score over a family's cells (`n_cells` asked; the rest were skipped, the trial
+    being infeasible already).
+
+    The value is the `aggregate` (``AGGREGATES``: ``worst`` = max, or ``mean``) of the
+    cells' ratios to their minimum-time laps [1], ``PENALTY_S`` when a cell has no complete
+    set of laps or cells were skipped; the constraints add up over the cells (the margin
+    shortfall is the largest); a reason names its cell. ``mean_lap_s`` carries the
+    aggregated ratio too (None without every cell's)."""
+    if aggregate not in AGGREGATES:
+        raise ValueError(f"aggregate must be one of {', '.join(AGGREGATES)}, got {aggregate!r}")
+    if not cells:
+        return Score(PENALTY_S, (0.0, 0.0, 1.0, 0.0, 0.0, 0.0), ("no cell ran",), None)
+    cons = [sum(c.score.constraints[k] for c in cells) for k in range(len(CONSTRAINTS))]
+    cons[3] = max(c.score.constraints[3] for c in cells)
+    reasons = [f"{c.track}/{c.car}: {r}" for c in cells for r in c.score.reasons]
+    if reasons and len(cells) < n_cells:
+        reasons.append(f"{n_cells - len(cells)} cell(s) skipped")
+    ratios = [c.ratio for c in cells]
+    agg = None
+    if len(cells) == n_cells and all(r is not None for r in ratios):
+        vals = [float(r) for r in ratios if r is not None]
+        agg = max(vals) if aggregate == "worst" else sum(vals) / len(vals)
+    value = agg if agg is not None else PENALTY_S
+    return Score(float(value), tuple(float(c) for c in cons), tuple(reasons), agg)

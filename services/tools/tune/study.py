@@ -4,8 +4,10 @@ Storage: an RDB URL, by default ``sqlite:///DIR/study.db``; several processes (o
 with a server database) given the same ``--storage`` share one study and its trial budget.
 
 Identity: the study's name encodes the method and the track (``cimpcc@paperlike-1a2b3c4d``:
-the track's name and a hash of its geometry), and the study records what its values mean
-(method, track, laps, seeds, margin, noise, top speed, base configuration). Resuming a study
+the track's name and a hash of its geometry; a family of several cells
+``cimpcc@family-1a2b3c4d``, a hash of its tracks and cars), and the study records what its
+values mean (method, tracks, cars, aggregate, constraints, laps, seeds, margin, noise, top
+speed, base configuration). Resuming a study
 with anything else is a ``StudyMismatchError`` (the values would not be comparable), and so
 is a default study file in DIR that already holds the study of another method or track.
 
@@ -41,13 +43,19 @@ from services.tools.tune.search import CONSTRAINTS, Params, SearchSpace, dotted
 #: The study user attribute holding what the study's values mean.
 META_KEY = "racestack_tune"
 #: Keys of that record a resume must match.
-IDENTITY_KEYS = ("method", "track", "track_fingerprint", "objective", "v_max_mps", "config")
+IDENTITY_KEYS = ("method", "track", "track_fingerprint", "cars", "aggregate", "constraints",
+                 "objective", "v_max_mps", "config")
 #: TPE's random start-up trials (Optuna's default) before it models the history.
 STARTUP_TRIALS = 10
 #: Seconds a SQLite writer waits for another process's lock.
 SQLITE_TIMEOUT_S = 60.0
 #: Times a worker retries opening a storage whose tables another worker is creating.
 SCHEMA_RACE_RETRIES = 5
+#: Longest wait [s] of a worker whose budget is met for trials other workers still race (a
+#: worker that died leaves its trial RUNNING for ever: the wait gives up then).
+WAIT_FOR_OTHERS_S = 900.0
+#: Seconds between two looks at the other workers' running trials.
+WAIT_POLL_S = 1.0
 
 log = logging.getLogger("racestack.tune")
 
@@ -62,7 +70,8 @@ def default_storage(out_dir: Path) -> str:
 
 
 def study_name(method: str, track_name: str, track_fingerprint: str) -> str:
-    """The study's name: method and track (``cimpcc@paperlike-1a2b3c4d``)."""
+    """The study's name: method and track (``cimpcc@paperlike-1a2b3c4d``; a family's
+    `track_name` is ``family``)."""
     return f"{method}@{track_name}-{track_fingerprint}"
 
 
@@ -99,7 +108,8 @@ def _describe(meta: Mapping[str, Any]) -> str:
     obj = meta.get("objective", {})
     return (
         f"method {meta.get('method')}, track {meta.get('track')} "
-        f"({meta.get('track_fingerprint')}), laps {obj.get('laps')}, seeds {obj.get('seeds')}"
+        f"({meta.get('track_fingerprint')}), cars {meta.get('cars')}, laps {obj.get('laps')}, "
+        f"seeds {obj.get('seeds')}"
     )
 
 
@@ -272,6 +282,8 @@ def _tell_outcome(
     trial.set_user_attr("overlay", out.overlay)
     trial.set_user_attr("tuned_keys", dotted(space.overlay(trial.params)))
     trial.set_user_attr("details", out.details)
+    if out.cells:
+        trial.set_user_attr("cells", list(out.cells))
     return study.tell(trial, sc.value)
 
 
@@ -314,15 +326,20 @@ def run_trials(
     budget: int,
     report: Report | None = None,
     stop: GracefulStop | None = None,
+    wait_s: float = WAIT_FOR_OTHERS_S,
+    say: Callable[[str], None] | None = None,
 ) -> LoopReport:
     """Ask, evaluate and tell trials until the study has `budget` finished ones, or a stop
-    (KeyboardInterrupt from `evaluate`, or `stop` requested)."""
+    (KeyboardInterrupt from `evaluate`, or `stop` requested). Once the budget is taken,
+    the trials other workers still race are waited for (at most `wait_s`, ``wait_for_others``),
+    so that this worker's outputs hold the whole study."""
     rep = LoopReport()
     me = worker_id()
     stop = stop or GracefulStop()
     while not stop.requested:
         done, running = finished_count(study)
         if done + running >= budget:
+            wait_for_others(study, running, stop, wait_s, say)
             break
         trial = study.ask()
         try:
@@ -339,6 +356,22 @@ def run_trials(
             report(frozen)
     rep.interrupted = rep.interrupted or stop.requested
     return rep
+
+
+def wait_for_others(
+    study: optuna.Study, running: int, stop: GracefulStop, wait_s: float,
+    say: Callable[[str], None] | None = None,
+) -> int:
+    """Wait until no trial of the study is RUNNING (other workers' trials), `wait_s` passed
+    or a stop is requested; the number still running then (one line via `say` first)."""
+    if running and say is not None:
+        say(f"the budget is taken; waiting for {running} trial(s) of other workers "
+            f"(at most {wait_s:.0f} s)")
+    deadline = time.monotonic() + wait_s
+    while running and not stop.requested and time.monotonic() < deadline:
+        time.sleep(WAIT_POLL_S)
+        running = finished_count(study)[1]
+    return running
 
 
 def best_trial(study: optuna.Study) -> FrozenTrial | None:

@@ -116,7 +116,7 @@ def test_score_feasible_is_the_mean_lap() -> None:
     sc = score([_seed(0), _seed(1, (13.2, 13.3))], laps=2, n_seeds=2, margin_m=0.05)
     assert sc.feasible and sc.reasons == ()
     assert sc.value == pytest.approx(13.15)
-    assert sc.constraints == (0.0, 0.0, 0.0, pytest.approx(-0.15))
+    assert sc.constraints == (0.0, 0.0, 0.0, pytest.approx(-0.15), 0.0, 0.0)
 
 
 def test_score_infeasible_cases() -> None:

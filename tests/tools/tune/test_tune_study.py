@@ -184,3 +184,30 @@ def test_a_signal_between_races_stops_before_the_next_trial(tmp_path: Path) -> N
     # inside a race the same signal interrupts the race itself
     with pytest.raises(KeyboardInterrupt), stop.racing():
         stop.handler(2, None)
+
+
+def test_a_worker_whose_budget_is_taken_waits_for_the_other_workers_trials(
+    tmp_path: Path, monkeypatch
+) -> None:
+    study = _open(tmp_path)
+    other = study.ask()  # another worker's trial, still running
+    said: list[str] = []
+    looks = {"n": 0}
+
+    def finish_it(_s: float) -> None:
+        looks["n"] += 1
+        if looks["n"] == 2:  # the other worker tells its trial while this one waits
+            study.tell(other, 13.5)
+
+    monkeypatch.setattr(st.time, "sleep", finish_it)
+    rep = st.run_trials(study, SPACE, fake_evaluate, budget=2, say=said.append)
+    assert rep.told == 1 and looks["n"] == 2
+    assert said == ["the budget is taken; waiting for 1 trial(s) of other workers "
+                    "(at most 900 s)"]
+    assert st.finished_count(study) == (2, 0)
+
+
+def test_the_wait_for_a_dead_workers_trial_gives_up(tmp_path: Path) -> None:
+    study = _open(tmp_path)
+    study.ask()  # left RUNNING by a worker that died
+    assert st.wait_for_others(study, 1, st.GracefulStop(), wait_s=0.3) == 1
