@@ -25,6 +25,7 @@ import numpy as np
 from services.planner import PlannerPool, ensure_artefacts
 from services.planner.opponents import OpponentEstimate
 from shared.config import load_config
+from shared.config.methods import RACELINE
 from shared.track import load_track
 
 
@@ -46,8 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     cfg = load_config(None)
     track = load_track(a.track)
-    ensure_artefacts("raceline", track, cfg.planner, cfg.vehicle)
-    planner = PlannerPool(track, cfg.vehicle).planner(cfg.planner, "raceline", cfg.curvature)
+    ensure_artefacts(RACELINE, track, cfg.planner, cfg.vehicle)
+    planner = PlannerPool(track, cfg.vehicle).planner(cfg.planner, RACELINE, cfg.curvature)
     line = planner.raceline.track
     ref = planner.raceline.reference
     lr = cfg.vehicle.lr_m

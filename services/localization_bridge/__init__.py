@@ -4,11 +4,13 @@ in; one fused, latency-compensated ``state`` out.
 What tools (the bench, benchmarks, tests) use (``__all__``): the EKF over a measurement
 history (``FusedEstimator`` -> ``Estimate``, ``Verdict``), the lidar pose source
 (``LidarPoseSource``, ``start_pose``, ``ScanPose``), the scan checks (``scan_problem``,
-``ScanLayout``) and the particle filter (``ParticleFilter``, ``PfEstimate``).
+``ScanLayout``), the particle filter (``ParticleFilter``, ``PfEstimate``) and the opponents'
+detector and tracker (``OpponentDetector``, ``OpponentTracker``).
 """
 
 from services.localization_bridge.estimator import Estimate, FusedEstimator, Verdict
 from services.localization_bridge.lidar_pose import LidarPoseSource, ScanPose, start_pose
+from services.localization_bridge.opponents import OpponentDetector, OpponentTracker
 from services.localization_bridge.particle_filter import ParticleFilter, PfEstimate
 from services.localization_bridge.scan_check import ScanLayout, scan_problem
 
@@ -16,6 +18,8 @@ __all__ = [
     "Estimate",
     "FusedEstimator",
     "LidarPoseSource",
+    "OpponentDetector",
+    "OpponentTracker",
     "ParticleFilter",
     "PfEstimate",
     "ScanLayout",

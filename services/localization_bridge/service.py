@@ -63,7 +63,7 @@ from services.localization_bridge.estimator import Estimate, FusedEstimator, Ver
 from services.localization_bridge.fusion import StateAssembler
 from services.localization_bridge.lidar_pose import LidarPoseSource, start_pose
 from services.localization_bridge.opponent_feed import OpponentFeed, pose_at
-from shared.bus import Bus
+from shared.bus import Bus, ChannelSubscription
 from shared.config import RacestackConfig
 from shared.config.localization import LocalizationSettings
 from shared.keys import EVENTS_LOG, IMU, ODOM, OPPONENTS, POSE, SCAN, STATE, TELEPORT
@@ -166,6 +166,7 @@ class BridgeService(Service):
         self._forget_opponents = False
         self._opponent_track = track if settings.opponents.enabled else None
         self.opponents_enabled = self._opponent_track is not None
+        self.opponent_scans: ChannelSubscription[Scan] | None = None
         if self.opponents_enabled:
             self.opponent_pub = self.publisher(OPPONENTS)
             #: with the lidar the scan worker does them after the state (one scan channel)

@@ -50,6 +50,7 @@ from services.planner.mintime.store import (
 )
 from services.planner.mpc.model import discretise, kinematic_bicycle, step_numpy
 from services.planner.mpc.planner import Planner
+from services.planner.opponents import OpponentEstimate
 from services.planner.raceline.planner import RacelinePlanner
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import Recovery
@@ -70,6 +71,7 @@ __all__ = [
     "MinTimeError",
     "MinTimeLap",
     "MinTimeSettings",
+    "OpponentEstimate",
     "Planner",
     "PlannerLike",
     "PlannerPool",

@@ -209,7 +209,7 @@ PLANNER_ROOMS: dict[str, frozenset[str]] = {
     "raceline": frozenset({"mintime"}),
 }
 #: Top-level planner modules the rooms may use (the planner-wide types and helpers).
-PLANNER_COMMON = frozenset({"interface", "recovery", "reference", "cache"})
+PLANNER_COMMON = frozenset({"interface", "recovery", "reference", "cache", "opponents"})
 
 
 def _check_room(path: str, line: int, head: list[str]) -> Iterator[Violation]:

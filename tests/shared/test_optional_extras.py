@@ -22,7 +22,7 @@ from shared.extras import EXTRAS, MissingExtraError, missing_extra, require
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The libraries of the extras, by distribution name (as pyproject lists them).
-TOOL_ONLY = ("optuna", "matplotlib", "scikit-image", "rosbags")
+TOOL_ONLY = ("optuna", "matplotlib", "scikit-image", "rosbags", "psycopg2-binary")
 BLOCKED = ("optuna", "matplotlib", "skimage", "rosbags")
 
 BLOCKER = f'''
@@ -54,7 +54,9 @@ def test_the_core_dependencies_hold_no_tool_only_library() -> None:
     core = _requirement_names(data["project"]["dependencies"])
     assert not core & set(TOOL_ONLY), core & set(TOOL_ONLY)
     extras = data["project"]["optional-dependencies"]
-    assert _requirement_names(extras["tools"]) == {"optuna", "matplotlib", "scikit-image"}
+    # psycopg2-binary: Optuna's PostgreSQL storage for several tuning workers (racestack tune)
+    assert _requirement_names(extras["tools"]) == {"optuna", "matplotlib", "scikit-image",
+                                                   "psycopg2-binary"}
     assert _requirement_names(extras["ros2"]) == {"rosbags"}
     for library, (distribution, extra) in EXTRAS.items():  # the messages name real extras
         if library != "scipy":  # scipy comes with scikit-image

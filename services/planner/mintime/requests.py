@@ -116,7 +116,7 @@ def for_pose_source(settings: PlannerSettings, pose: str) -> PlannerSettings:
         return settings
     o = settings.raceline
     raceline = o.model_copy(update={"min_time_margin_m": min(o.min_time_margin_m + extra, 1.0)})
-    return settings.model_copy(update={"raceline": raceline})
+    return settings.model_copy(update=dict(raceline=raceline))  # the section, not the method
 
 
 def line_request(

@@ -31,10 +31,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.planner import PlannerLike, SolveResult
-from services.planner.opponents import OpponentEstimate
-from services.simulator import Command, LapTimer, Simulator, centreline_pose, rear_axle
-from services.simulator.lidar import LidarScanner
+from services.planner import OpponentEstimate, PlannerLike, SolveResult
+from services.simulator import (
+    Command,
+    LapTimer,
+    LidarScanner,
+    Simulator,
+    centreline_pose,
+    rear_axle,
+)
 from shared.car import CAR
 from shared.config.simulator import SimulatorSettings
 from shared.evaluation.results import OUT_LAP_START_M
@@ -187,7 +192,7 @@ class LidarView:
     """The ego's view of the other car through the simulated lidar, detector and tracker."""
 
     def __init__(self, track: Track, seed: int) -> None:
-        from services.localization_bridge.opponents import OpponentDetector, OpponentTracker
+        from services.localization_bridge import OpponentDetector, OpponentTracker
 
         grid = occupancy_for(track)
         self.scanner = LidarScanner(grid, beams=1080, fov_rad=4.7, range_max_m=30.0)
