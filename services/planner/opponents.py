@@ -18,6 +18,12 @@ instead its **share of that profile**, ``rho = v_s / v_p(s_0)`` (clipped to [0,
 ``MAX_PROFILE_SHARE``]): ``ds/dt = rho v_p(s)`` -- it brakes for the bends the
 line brakes for (a car held at constant speed would drive through a hairpin at its straight
 speed in the prediction). A stopped car stays stopped either way.
+
+From the bus (``estimates_from_record``): the planner service turns each ``opponents`` record
+(``shared.messages.Opponents``, its tracks at the scan's stamp) into estimates moved to "now"
+at their own velocity, ``x = x_scan + v (t_now - t_scan)``; a record older than the stale
+limit gives none, a track with a value that is not a finite number (or a non-positive size)
+is dropped; both are counted (``RecordCounts``), never raised.
 """
 
 from __future__ import annotations
@@ -60,6 +66,88 @@ class OpponentEstimate:
     length_m: float = CAR.length_m
     width_m: float = CAR.width_m
     covariance: tuple[float, ...] = field(default=())
+
+
+@dataclass
+class RecordCounts:
+    """What ``estimates_from_record`` made of the records it was given (running totals).
+
+    Attributes:
+        records: records converted; stale: of them, dropped whole for their age.
+        tracks: tracks handed on as estimates; bad_tracks: tracks dropped as malformed.
+    """
+
+    records: int = 0
+    stale: int = 0
+    tracks: int = 0
+    bad_tracks: int = 0
+
+
+def _estimate(track: object, age_s: float) -> OpponentEstimate | None:
+    """One record track as an estimate `age_s` [s] after its scan (None: malformed)."""
+    try:
+        x, y = float(track.x_m), float(track.y_m)  # type: ignore[attr-defined]
+        vx, vy = float(track.vx_mps), float(track.vy_mps)  # type: ignore[attr-defined]
+        yaw = float(track.yaw_rad)  # type: ignore[attr-defined]
+        length, width = float(track.length_m), float(track.width_m)  # type: ignore[attr-defined]
+        cxx, cxy = float(track.cov_xx_m2), float(track.cov_xy_m2)  # type: ignore[attr-defined]
+        cyy = float(track.cov_yy_m2)  # type: ignore[attr-defined]
+        sv = float(track.speed_var_m2ps2)  # type: ignore[attr-defined]
+        tid = int(track.id)  # type: ignore[attr-defined]
+    except (AttributeError, TypeError, ValueError, OverflowError):
+        return None
+    values = (x, y, vx, vy, yaw, length, width, cxx, cxy, cyy, sv)
+    if not all(np.isfinite(values)) or length <= 0.0 or width <= 0.0:
+        return None
+    # covariance of (x, y, vx, vy): the position block, the speed variance on both velocity
+    # axes, grown over the age by the velocity's (row-major, 16 values)
+    a2 = age_s * age_s
+    cov = (
+        cxx + a2 * sv, cxy, age_s * sv, 0.0,
+        cxy, cyy + a2 * sv, 0.0, age_s * sv,
+        age_s * sv, 0.0, sv, 0.0,
+        0.0, age_s * sv, 0.0, sv,
+    )
+    return OpponentEstimate(tid, x + vx * age_s, y + vy * age_s, vx, vy, yaw, length, width, cov)
+
+
+def estimates_from_record(
+    record: object, now_s: float, stale_s: float, counts: RecordCounts | None = None
+) -> list[OpponentEstimate]:
+    """The estimates of one ``opponents`` record at wall time `now_s` [s] (module
+    docstring).
+
+    Args:
+        record: an ``Opponents`` record (``source_stamp_s`` [s], ``tracks``).
+        now_s: the time to move the tracks to [s] (the record's clock: wall time).
+        stale_s: a record whose scan is older than this [s] gives no estimates.
+        counts: running totals to add to (``RecordCounts``).
+
+    Returns:
+        the estimates (empty for a stale or malformed record); never raises for the record's
+        contents.
+    """
+    counts = counts if counts is not None else RecordCounts()
+    counts.records += 1
+    try:
+        age = float(now_s) - float(record.source_stamp_s)  # type: ignore[attr-defined]
+        tracks = list(record.tracks)  # type: ignore[attr-defined]
+    except (AttributeError, TypeError, ValueError, OverflowError):
+        counts.stale += 1  # no usable stamp: as good as stale
+        return []
+    if not np.isfinite(age) or age > stale_s:
+        counts.stale += 1
+        return []
+    age = max(age, 0.0)  # a clock a little ahead of ours: the scan is "now"
+    out: list[OpponentEstimate] = []
+    for tr in tracks:
+        est = _estimate(tr, age)
+        if est is None:
+            counts.bad_tracks += 1
+        else:
+            out.append(est)
+    counts.tracks += len(out)
+    return out
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,15 @@ inside ``Planner.step``, before its result record is assembled), pause
 next tick's warm start (``Planner.prepare``). The shell is a ``shared.service.Service``: its
 ports are declared in ``PlannerShell.PORTS``; the base's watchdog (main thread) publishes the
 drop reports and watches both workers.
+
+Opponents (issue #24): when the method plans around the other cars (the registry's
+``MethodSpec.opponents``, and the planner has ``set_opponents``) the shell subscribes to its
+car's ``opponents`` (the bridge's lidar tracker, one record per scan, newest kept) and hands
+the planner the newest record's tracks before each solve
+(``services.planner.opponents.estimates_from_record``: moved to now at their velocity; a
+record older than ``[planner] opponent_stale_s`` gives none, malformed tracks are dropped;
+both counted in ``opponent_counts``, a warning at most once per second, never a crash). No
+record yet: the planner races alone. Other methods do not subscribe.
 """
 
 from __future__ import annotations
@@ -36,11 +45,21 @@ import numpy as np
 
 from services.planner.interface import DriveCommand, PlannerLike, SolveResult
 from services.planner.mintime.store import MinTimeArtefactMissingError
+from services.planner.opponents import OpponentEstimate, RecordCounts, estimates_from_record
 from services.planner.registry import make_planner
 from shared.bus import Bus, ChannelSubscription
 from shared.config import RacestackConfig
-from shared.keys import DRIVE_CMD, EVENTS_LOG, PLAN, STATE
-from shared.messages import DriveCmd, LogEvent, LogLevelName, Plan, PlanStatusName, State
+from shared.config.methods import plans_with_opponents
+from shared.keys import DRIVE_CMD, EVENTS_LOG, OPPONENTS, PLAN, STATE
+from shared.messages import (
+    DriveCmd,
+    LogEvent,
+    LogLevelName,
+    Opponents,
+    Plan,
+    PlanStatusName,
+    State,
+)
 from shared.service import Service, publishes, subscribes
 from shared.service_shell import run_service
 from shared.track import load_track
@@ -108,6 +127,7 @@ class PlannerShell(Service):
     NAME = "planner"
     PORTS = (
         subscribes(STATE, State),
+        subscribes(OPPONENTS, Opponents),
         publishes(DRIVE_CMD, DriveCmd),
         publishes(PLAN, Plan),
         publishes(EVENTS_LOG, LogEvent),
@@ -120,7 +140,11 @@ class PlannerShell(Service):
         *,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
+        opponents: bool | None = None,
     ) -> None:
+        """`opponents`: subscribe to ``opponents`` and hand them to the planner (None: when
+        the registry says ``planner.settings.method`` plans with opponents and the planner
+        takes them)."""
         super().__init__(bus, period_s=planner.settings.dt_s, clock=clock, wall_clock=wall_clock)
         self.planner = planner
         self.period = planner.settings.dt_s
@@ -143,6 +167,16 @@ class PlannerShell(Service):
         self.steering = 0.0
         self.cmd_stamp = 0.0  #: wall-clock stamp of the last command published [s]
         self._lock = threading.Lock()  # the state worker and the deadline worker
+        takes = callable(getattr(planner, "set_opponents", None))
+        if opponents is None:
+            opponents = takes and plans_with_opponents(planner.settings.method)
+        #: the newest ``opponents`` record (None: the method plans without opponents)
+        self.opponent_sub = self.subscribe(OPPONENTS) if opponents and takes else None
+        self.opponent_stale_s = planner.settings.opponent_stale_s
+        #: records converted, stale ones, tracks handed on, malformed tracks dropped
+        self.opponent_counts = RecordCounts()
+        self._opponent_record: Opponents | None = None
+        self._opponents: list[OpponentEstimate] = []
 
     def brake(self) -> float:
         """Command speed 0, steering held; returns the command's stamp [s]."""
@@ -180,6 +214,8 @@ class PlannerShell(Service):
             return
         self.last_solve = now
         self.solved_source_s = st.source_stamp_s
+        if self.opponent_sub is not None:
+            self.hand_opponents()
         res = self.planner.step(st.x_m, st.y_m, st.yaw_rad, on_command=self.publish_command)
         if self.command_yield_s > 0.0:  # let the command go out before the rest of the work
             time.sleep(self.command_yield_s)
@@ -200,6 +236,34 @@ class PlannerShell(Service):
             braking = res.status == PlanStatusName.BRAKING
             level = LogLevelName.ERROR if braking else LogLevelName.WARNING
             self.say(level, f"solver {res.status}: {res.solver_status}")
+
+    def hand_opponents(self) -> list[OpponentEstimate]:
+        """Give the planner the newest ``opponents`` record's tracks, as of now (module
+        docstring); returns what it was given. A record is converted once; one that grew
+        stale since is dropped (counted once) and the planner gets none."""
+        counts = self.opponent_counts
+        before = (counts.stale, counts.bad_tracks)
+        record = self.opponent_sub.take() if self.opponent_sub is not None else None
+        now = self.wall_clock()
+        if record is not None:
+            self._opponent_record = record
+            self._opponents = estimates_from_record(record, now, self.opponent_stale_s, counts)
+        elif self._opponents and now - self._opponent_record.source_stamp_s > (
+            self.opponent_stale_s
+        ):
+            counts.stale += 1  # no newer record since: the tracks went stale
+            self._opponents = []
+        if (counts.stale, counts.bad_tracks) != before:
+            self.say(LogLevelName.WARNING,
+                     f"opponents: {counts.stale} stale records, {counts.bad_tracks} malformed "
+                     f"tracks dropped of {counts.records} records", limit="opponents")
+        try:
+            self.planner.set_opponents(self._opponents)  # type: ignore[attr-defined]
+        except Exception as exc:  # a planner that refuses them races alone, never crashes
+            detail = f"{type(exc).__name__}: {exc}"
+            self.bus.faults.record(self.keys.opponents, "set_opponents", detail)
+            return []
+        return self._opponents
 
     def consume(self, states: ChannelSubscription[State]) -> None:
         """The worker loop: plan from every state as it arrives, until the bus closes."""

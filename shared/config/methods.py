@@ -70,6 +70,8 @@ class MethodSpec:
         base: a bench variant's underlying method (it races that method's planner), or None.
         bench_variant: how the bench races a variant (``BenchVariant``), or None.
         summary: one line for the command line's help and the docs.
+        opponents: its planner plans around the other cars (``set_opponents``; the planner
+            service then subscribes to ``opponents``, issue #24).
     """
 
     name: str
@@ -81,6 +83,7 @@ class MethodSpec:
     base: str | None = None
     bench_variant: BenchVariant | None = None
     summary: str = ""
+    opponents: bool = False
 
     @property
     def in_planner(self) -> bool:
@@ -100,6 +103,7 @@ METHODS: dict[str, MethodSpec] = {
     RACELINE: MethodSpec(
         RACELINE, "tracker", "planned_line", "raceline", None,
         summary="the raceline baseline: a line with a speed profile and a model tracker",
+        opponents=True,
     ),
     CIMPCC_LINE: MethodSpec(
         CIMPCC_LINE, "mpc", "min_time_line", "cimpcc_line", "cimpcc_line.weights",
@@ -130,6 +134,13 @@ def planner_methods() -> tuple[str, ...]:
 def bench_methods() -> tuple[str, ...]:
     """The methods the bench races (every registered one), in registry order."""
     return tuple(METHODS)
+
+
+def plans_with_opponents(name: str) -> bool:
+    """Whether method `name` plans around the other cars (``MethodSpec.opponents``; a
+    bench variant: its base method's); UnknownMethodError when it is not registered."""
+    spec = method_spec(name)
+    return METHODS[spec.base or spec.name].opponents
 
 
 def method_spec(name: str, *, in_planner: bool = False) -> MethodSpec:

@@ -437,6 +437,14 @@ class PlannerSettings(Section):
     stale_state_s: float = Field(
         0.1, gt=0.0, le=5.0, description="planner service: state older than this -> brake"
     )
+    opponent_stale_s: float = Field(
+        0.25,
+        gt=0.0,
+        le=5.0,
+        description="planner service, a method that plans around opponents: an "
+        "``opponents`` record whose scan is older than this is dropped (counted) and the "
+        "planner races as if nobody were seen [s]",
+    )
     command_yield_s: float = Field(
         0.001,
         ge=0.0,
