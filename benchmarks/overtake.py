@@ -1,7 +1,19 @@
-"""Solve time of the raceline planner with two opponents in its horizon (issue #24).
+"""Overtaking (issue #24): the raceline planner's solve time with two opponents in its
+horizon, and (``--race``) head-to-head races over seeded starts on several tracks.
 
     .venv/bin/python -m benchmarks.overtake [--track ../shared/tracks/map416] [--ticks 600]
+    .venv/bin/python -m benchmarks.overtake --race [--tracks T1,T2,...] [--seeds 20]
+        [--first-seed 0] [--laps 2] [--opponent raceline:0.85] [--source truth|lidar]
 
+Races (``--race``): ``raceline`` (the ego) against ``--opponent`` on each track, over the
+seeded starts of the bench (``services.tools.bench.head_to_head``: both from standstill, the
+opponent a random 2-6 m ahead), ``--laps`` laps each. Printed per track: the bench's table,
+then the acceptance lines of #24 (passed within the laps in >= 90 % of the starts, 0
+contacts, 0 off-track events of the ego) and, with ``--source lidar``, the tracker's id
+switches per overtake (times the id of the track matched to the opponent within 5 m
+changed, over the overtakes).
+
+Solve time (default):
 The ``raceline`` planner (``[planner.raceline]``, the minimum-time line from the cache) is
 stepped from ``--ticks`` poses along its line (every ``--step`` m, a fresh planner state is
 not needed: the hint follows), each tick with two opponents predicted over its horizon: one
@@ -24,9 +36,23 @@ import numpy as np
 
 from services.planner import PlannerPool, ensure_artefacts
 from services.planner.opponents import OpponentEstimate
+from services.tools.bench.head_to_head import (
+    HeadToHeadOptions,
+    OpponentSpec,
+    format_head_to_head,
+    run_head_to_head,
+)
 from shared.config import load_config
 from shared.config.methods import RACELINE
 from shared.track import load_track
+
+#: The tracks of ``--race`` by default: the two narrow ones and two F1TENTH maps (2.2 m).
+RACE_TRACKS = (
+    "../shared/tracks/map416",
+    "builtin:paperlike",
+    "../shared/tracks/f1tenth/Oschersleben",
+    "../shared/tracks/f1tenth/Spielberg",
+)
 
 
 def _opponent(line, ref, s: float, e: float, share: float, oid: int) -> OpponentEstimate:
@@ -37,6 +63,41 @@ def _opponent(line, ref, s: float, e: float, share: float, oid: int) -> Opponent
     return OpponentEstimate(oid, x, y, v * math.cos(h), v * math.sin(h), h)
 
 
+def race(a: argparse.Namespace) -> int:
+    """``--race``: the head-to-head races of every track (module docstring)."""
+    cfg = load_config(None)
+    spec = OpponentSpec.parse(a.opponent)
+    opts = HeadToHeadOptions(laps=a.laps, seeds=a.seeds, first_seed=a.first_seed,
+                             source=a.source)
+    ok = True
+    for name in a.tracks.split(","):
+        track = load_track(name.strip())
+        t0 = time.perf_counter()
+        doc = run_head_to_head(cfg, track, [RACELINE], spec, opts,
+                               progress=print if a.verbose else None)
+        m = doc[RACELINE]
+        print(format_head_to_head(track.name, spec, doc, a.laps))
+        passed = m["overtake_rate"] >= 0.9
+        clean = m["contacts"] == 0 and m["off_track_ego"] == 0
+        ok &= passed and clean
+        print(f"  {track.name}: passed within {a.laps} laps in {m['overtaken_within_laps']}/"
+              f"{m['seeds']} starts ({100 * m['overtake_rate']:.1f} %, target >= 90 %: "
+              f"{'met' if passed else 'NOT met'}); contacts {m['contacts']} (struck by the "
+              f"ego {m['contacts_struck_by_ego']}), off-track ego / opponent "
+              f"{m['off_track_ego']} / {m['off_track_opponent']} (target 0 / -: "
+              f"{'met' if clean else 'NOT met'}); aborted {m['aborted']}; seeds "
+              f"{a.first_seed}-{a.first_seed + a.seeds - 1}; wall {time.perf_counter() - t0:.0f} s")
+        if m["tracker_id_changes"] is not None:
+            per = m["tracker_id_changes"] / max(m["overtakes"], 1)
+            print(f"  {track.name}: tracker id switches {m['tracker_id_changes']} over "
+                  f"{m['overtakes']} overtakes ({per:.2f} per overtake)")
+        failed = [r["seed"] for r in m["per_seed"]
+                  if r["first_overtake_laps"] is None or r["contacts"] or r["ego_off_track"]]
+        if failed:
+            print(f"  {track.name}: starts not passed or not clean: {failed}")
+    return 0 if ok else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--track", default="../shared/tracks/map416",
@@ -44,7 +105,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ticks", type=int, default=600, help="ticks (default 600)")
     ap.add_argument("--step", type=float, default=0.2, help="metres between poses (0.2)")
     ap.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    ap.add_argument("--race", action="store_true",
+                    help="race head to head instead of timing the solve (default off)")
+    ap.add_argument("--tracks", default=",".join(RACE_TRACKS),
+                    help=f"--race: comma-separated track specs (default {','.join(RACE_TRACKS)})")
+    ap.add_argument("--seeds", type=int, default=20, help="--race: seeded starts (default 20)")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="--race: the first seed (default 0)")
+    ap.add_argument("--laps", type=int, default=2, help="--race: laps per start (default 2)")
+    ap.add_argument("--opponent", default=f"{RACELINE}:0.85",
+                    help=f"--race: METHOD[:SPEED_SCALE] (default {RACELINE}:0.85)")
+    ap.add_argument("--source", choices=("truth", "lidar"), default="truth",
+                    help="--race: the ego sees the opponent from (default truth)")
+    ap.add_argument("--verbose", action="store_true",
+                    help="--race: a line per start (default off)")
     a = ap.parse_args(argv)
+    if a.race:
+        return race(a)
     cfg = load_config(None)
     track = load_track(a.track)
     ensure_artefacts(RACELINE, track, cfg.planner, cfg.vehicle)
