@@ -7,11 +7,12 @@ horizon, and (``--race``) head-to-head races over seeded starts on several track
 
 Races (``--race``): ``raceline`` (the ego) against ``--opponent`` on each track, over the
 seeded starts of the bench (``services.tools.bench.head_to_head``: both from standstill, the
-opponent a random 2-6 m ahead), ``--laps`` laps each. Printed per track: the bench's table,
-then the acceptance lines of #24 (passed within the laps in >= 90 % of the starts, 0
-contacts, 0 off-track events of the ego) and, with ``--source lidar``, the tracker's id
-switches per overtake (times the id of the track matched to the opponent within 5 m
-changed, over the overtakes).
+opponent a random 2-6 m ahead), ``--laps`` laps each (``--stop-lead M``: a start ends once
+the ego has passed and leads by M m; the rest would be its solo lap). Printed per track:
+the bench's table, then the acceptance lines of #24 (passed within the laps in >= 90 % of
+the starts, 0 contacts, 0 off-track events of the ego) and, with ``--source lidar``, the
+tracker's id switches per overtake (times the id of the track matched to the opponent
+within 5 m changed, over the overtakes).
 
 Solve time (default):
 The ``raceline`` planner (``[planner.raceline]``, the minimum-time line from the cache) is
@@ -68,7 +69,7 @@ def race(a: argparse.Namespace) -> int:
     cfg = load_config(None)
     spec = OpponentSpec.parse(a.opponent)
     opts = HeadToHeadOptions(laps=a.laps, seeds=a.seeds, first_seed=a.first_seed,
-                             source=a.source)
+                             source=a.source, stop_lead_m=a.stop_lead)
     ok = True
     for name in a.tracks.split(","):
         track = load_track(name.strip())
@@ -86,7 +87,9 @@ def race(a: argparse.Namespace) -> int:
               f"ego {m['contacts_struck_by_ego']}), off-track ego / opponent "
               f"{m['off_track_ego']} / {m['off_track_opponent']} (target 0 / -: "
               f"{'met' if clean else 'NOT met'}); aborted {m['aborted']}; seeds "
-              f"{a.first_seed}-{a.first_seed + a.seeds - 1}; wall {time.perf_counter() - t0:.0f} s")
+              f"{a.first_seed}-{a.first_seed + a.seeds - 1}"
+              + ("" if a.stop_lead is None else f", each ended {a.stop_lead:g} m ahead")
+              + f"; wall {time.perf_counter() - t0:.0f} s")
         if m["tracker_id_changes"] is not None:
             per = m["tracker_id_changes"] / max(m["overtakes"], 1)
             print(f"  {track.name}: tracker id switches {m['tracker_id_changes']} over "
@@ -117,6 +120,9 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"--race: METHOD[:SPEED_SCALE] (default {RACELINE}:0.85)")
     ap.add_argument("--source", choices=("truth", "lidar"), default="truth",
                     help="--race: the ego sees the opponent from (default truth)")
+    ap.add_argument("--stop-lead", type=float, default=None,
+                    help="--race: end a start once the ego has passed and leads by this many "
+                    "metres (default: race all the laps)")
     ap.add_argument("--verbose", action="store_true",
                     help="--race: a line per start (default off)")
     a = ap.parse_args(argv)

@@ -155,3 +155,64 @@ def test_a_stopped_car_on_a_straight_is_passed_or_waited_behind_never_touched(
         assert r.overtakes == 1 and not r.aborted
     else:  # 0.64 m: no room, the ego waits behind it
         assert r.overtakes == 0 and r.aborted and 0.3 < r.ego_distance_m < 10.0
+
+
+def _ahead(line, s: float, v: float, oid: int = 1, e: float = 0.0) -> OpponentEstimate:
+    x, y = (float(c) for c in line.point_at(s))
+    h = float(line.heading_at(s))
+    x, y = x + e * math.sin(h), y - e * math.cos(h)  # e right +
+    return OpponentEstimate(oid, x, y, v * math.cos(h), v * math.sin(h), h)
+
+
+def test_a_pass_that_cannot_be_over_within_the_horizon_is_not_started() -> None:
+    ref = straight_line_lap(half_width_m=1.0)
+    line = ref.line
+    p = OvertakeParams()
+    for v_o, s_o, mode in ((3.9, 11.0, "follow"), (2.0, 13.0, "pass")):
+        o = _ahead(line, s_o, v_o)
+        plan = plan_around(ref, 10.0, 0.0, [predict_on_line(line, o, p.times(), s_o)], 0.0,
+                           p, v_e_mps=4.0)
+        assert plan.mode == mode, (v_o, plan)
+
+
+def test_following_waits_beside_the_line_of_the_car_ahead_just_behind_side_by_side() -> None:
+    ref = straight_line_lap(half_width_m=1.0)
+    line = ref.line
+    p = OvertakeParams()
+    o = _ahead(line, 11.0, 3.9)  # too little slower to be passed within the horizon
+    pred = predict_on_line(line, o, p.times(), 11.0)
+    plan = plan_around(ref, 10.0, 0.0, [pred], 0.0, p, v_e_mps=3.9)
+    clear = 0.5 * (p.ego_width_m + o.width_m) + p.margin_lateral_m
+    assert plan.mode == "follow" and 0.15 < abs(plan.offset_m) <= clear + 0.03
+    # there, beside its line, it closes in to just behind side by side, not further
+    side = math.copysign(clear + 0.02, plan.offset_m)
+    ready = plan_around(ref, 10.0, side, [pred], side, p, v_e_mps=3.9)
+    assert ready.mode == "follow" and ready.speed_cap_mps > 3.9 + 0.2
+    beside = 0.5 * (p.ego_length_m + o.length_m) + p.margin_longitudinal_m
+    close = plan_around(ref, 11.0 - beside, side, [pred], side, p, v_e_mps=3.9)
+    assert close.speed_cap_mps < 3.9 + 0.1
+
+
+def test_the_outside_of_a_bend_is_longer_and_the_inside_slower_but_shorter() -> None:
+    from services.planner.raceline.overtake import _progress_on
+
+    p = OvertakeParams()
+    s_e = np.linspace(0.0, 10.0, 11)
+    kappa = np.full(11, 0.5)  # a left bend: the inside is left (e < 0)
+    line_prog = _progress_on(s_e, kappa, np.zeros(11), p)
+    outside = _progress_on(s_e, kappa, np.full(11, 0.4), p)
+    inside = _progress_on(s_e, kappa, np.full(11, -0.4), p)
+    np.testing.assert_allclose(line_prog, s_e)
+    assert outside[-1] == pytest.approx(10.0 / 1.2) and inside[-1] == pytest.approx(
+        10.0 / math.sqrt(0.8))
+
+
+def test_the_offset_path_gets_its_own_feed_forward_steering() -> None:
+    track = stadium()
+    ego = RacelinePlanner(track, PLANNER, vehicle=F1TENTH_GYM)
+    ref = ego.raceline.reference
+    s = float(ref.s_m[int(np.argmax(ref.kappa_1pm))])
+    ego._offset = -0.3  # inside of the left bend: tighter, more steering to the left
+    assert ego._offset_steering(s) > 0.0
+    ego._offset = 0.3
+    assert ego._offset_steering(s) < 0.0

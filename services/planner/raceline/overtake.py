@@ -15,24 +15,37 @@ The plan of one tick is a lateral target ``d`` (right +) and a speed cap:
    v_p(s_k)`` and *beside* when ``|s_jk - s_k| < L + m_lon`` (L, W the means of the two
    cars' lengths and widths). Nobody near: the line, no cap.
 3. A pass leaves each opponent on one side (two opponents: four combinations). Its
-   corridor per stage is the track (``W_e / 2 + m_wall`` inside both boundaries) and, at
-   the stages beside opponent j, ``e_k >= e_jk + W + m_lat`` (passing on its right) or
-   ``e_k <= e_jk - (W + m_lat)`` (its left). ``corridor_path`` finds the path nearest the
-   line inside it that the car can follow (``lateral_rate_mps`` after ``lateral_lag_s``),
-   or none. Cost, a proxy of the time lost: the mean ``|e_k|`` (plus ``change_weight``
-   for changing the side of a pass under way); the cheapest feasible pass wins, which
-   chooses the side by what is faster and safe. The target ``d`` is the path where the car
-   must be when it first comes beside (it moves out early: the real car lags the plan),
-   within the track over the way there.
-4. No feasible pass: **follow** -- towards the line, but on its side of any car it
-   overlaps now (never squeezed into it), with a speed cap behind each opponent ahead
-   that the path conflicts with::
+   corridor per stage is the track (``W_e / 2 + m_wall`` inside both boundaries, the
+   narrowest half-way to the neighbouring stages) and, at the stages beside opponent j,
+   ``e_k >= e_jk + W + m_lat`` (passing on its right) or ``e_k <= e_jk - (W + m_lat)``
+   (its left): the lateral room at the opponent's predicted place over the whole horizon.
+   A pass must be over within the horizon (nobody beside at its last stage: a pass that
+   cannot end would be squeezed between the car and a wall where the line crosses the
+   track). ``corridor_path`` finds the path nearest the line inside it that the car can
+   follow (``lateral_rate_mps`` after ``lateral_lag_s``), or none. Cost, a proxy of the
+   time lost: the mean ``|e_k|`` (plus ``change_weight`` for changing the side of a pass
+   under way); the cheapest feasible pass wins, which chooses the side by what is faster
+   and safe. The target ``d`` is the path where the car must be when it first comes beside
+   (it moves out early: the real car lags the plan), with up to ``pass_extra_m`` more
+   room from the car where the corridor has it, within the track over the way there.
+   3b. The ego's progress along the line on a candidate path is its progress on the line
+   times ``f / (1 + kappa e)`` per stage (``f`` of step 5; ``1 + kappa e`` the path's
+   length per metre of line): the outside of a bend is longer, the inside shorter but
+   slower. A candidate whose pass is not over within the horizon with that progress is
+   dropped; one whose beside stages grow with it is re-planned with both.
+4. No feasible pass: **follow** (``_follow``), ready to pass. Laterally: on its side of
+   any car it overlaps now (never squeezed into it); else beside the line of the nearest
+   car ahead (``W + m_lat`` off it) on the side with room for the longest, when that is at
+   least ``ready_time_s`` (the slipstream position: when a pass becomes possible it needs
+   no lateral move), else towards the line. The speed cap behind a car ahead in lateral
+   conflict (now or along the path) keeps the follow gap::
 
        v_cap = max(0, v_s,j + k_gap (s_j0 - s_e - L - g_min - T_gap v_s,j))        [m/s]
 
-   and the same cap applies whenever an opponent ahead is in lateral conflict now (a margin
-   of safety over the prediction). The ego never aims into a predicted footprint and slows
-   behind one it cannot pass: it never initiates contact.
+   laterally clear of it, the same law holds the ego just behind side by side
+   (``s_j0 - s_e -> L + m_lon + ready_gap``); side by side with it and more behind than
+   ahead, the ego drops back (``v_s,j - drop_back``). The ego never aims into a predicted
+   footprint and slows behind one it cannot pass: it never initiates contact.
 5. Off the line the planned speed is scaled to the bend's radius at the offset,
    ``sqrt(clip(1 + kappa e_k, f_min^2, 1))`` (``kappa`` left +: inside a left bend
    ``e < 0``), the smallest over the next ``curve_preview_s``, so the pass keeps the grip
@@ -72,15 +85,23 @@ class OvertakeParams:
         curve_preview_s: how far ahead the bend's radius scales the speed [s].
         target_time_s: the tracker's target is the planned path this far ahead [s].
         ego_accel_mps2: how fast the ego's predicted speed returns to the line's [m/s^2].
+        ready_time_s: following, the ego waits beside the line of the car ahead (the
+            slipstream position) on a side with room for at least this long over the
+            horizon (0: behind it, on the line) [s].
+        ready_gap_m: ... and there keeps its centre this far behind side by side [m].
+        drop_back_mps: side by side with a car it cannot pass, more behind than ahead, the
+            ego drops back this much slower than it [m/s].
+        pass_extra_m: passing, the target keeps up to this much more than ``W + m_lat``
+            from the car beside where the corridor has the room [m].
         ego_length_m, ego_width_m: the ego's footprint [m].
     """
 
-    stages: int = 30
-    stage_s: float = 0.1
+    stages: int = 25
+    stage_s: float = 0.2
     margin_lateral_m: float = 0.08
-    margin_longitudinal_m: float = 0.15
-    gap_time_s: float = 0.15
-    gap_min_m: float = 0.35
+    margin_longitudinal_m: float = 0.1
+    gap_time_s: float = 0.08
+    gap_min_m: float = 0.2
     gain_gap_per_s: float = 1.5
     wall_margin_m: float = 0.04
     lateral_rate_mps: float = 0.7
@@ -90,6 +111,10 @@ class OvertakeParams:
     curve_preview_s: float = 1.0
     target_time_s: float = 0.5
     ego_accel_mps2: float = 3.0
+    ready_time_s: float = 2.0
+    ready_gap_m: float = 0.05
+    drop_back_mps: float = 0.5
+    pass_extra_m: float = 0.05
     ego_length_m: float = CAR.length_m
     ego_width_m: float = CAR.width_m
 
@@ -118,6 +143,10 @@ class OvertakePlan:
 
 
 FREE = OvertakePlan(0.0, math.inf, 1.0, "line")
+#: The ready position keeps this much more than ``W + m_lat`` from the car's line [m].
+READY_EXTRA_M = 0.02
+#: The follow cap reads the opponent's speed this far ahead in its prediction [s].
+SOON_S = 0.4
 
 
 def ego_progress(
@@ -145,31 +174,53 @@ def corridor_path(
     that the car can follow from `e0`: moving at most ``lateral_rate_mps`` after
     ``lateral_lag_s``; None when no such path exists.
 
-    The bounds are first tightened backwards (``lo_k >= lo_(k+1) - r dt``, ``hi_k <=
-    hi_(k+1) + r dt``: what stage k+1 needs must be reachable from stage k), then the
-    path is built forwards, each stage the point of its tightened interval nearest the
-    line reachable from the last: exact for a one-dimensional rate-limited corridor.
+    The bounds are first tightened backwards (``lo_k >= lo_j - r (t_j - t_k)`` for every
+    later stage j, ``hi_k <= hi_j + r (t_j - t_k)``: what a later stage needs must be
+    reachable from stage k; a reversed running max / min), then the path is built forwards,
+    each stage the point of its tightened interval nearest the line reachable from the
+    last: exact for a one-dimensional rate-limited corridor.
     """
-    lo, hi = lo.astype(float).copy(), hi.astype(float).copy()
-    K = len(t)
-    step = p.lateral_rate_mps * np.diff(t)
-    for k in range(K - 2, -1, -1):
-        lo[k] = max(lo[k], lo[k + 1] - step[k])
-        hi[k] = min(hi[k], hi[k + 1] + step[k])
-    if np.any(lo > hi + 1e-9):
-        return None
-    path = np.empty(K)
+    r = p.lateral_rate_mps
+    rt = r * t
+    lo = (np.maximum.accumulate((lo - rt)[::-1])[::-1] + rt).tolist()
+    hi = (np.minimum.accumulate((hi + rt)[::-1])[::-1] - rt).tolist()
+    tt = t.tolist()
+    lag = p.lateral_lag_s
+    path = [0.0] * len(tt)
     e = e0
-    for k in range(K):
-        reach = p.lateral_rate_mps * max(t[k] - p.lateral_lag_s, 0.0)
-        a, b = max(lo[k], e0 - reach), min(hi[k], e0 + reach)
+    prev_t = tt[0]
+    for k, tk in enumerate(tt):
+        a, b = lo[k], hi[k]
+        if a > b + 1e-9:
+            return None
+        reach = r * (tk - lag) if tk > lag else 0.0
+        a, b = max(a, e0 - reach), min(b, e0 + reach)
         if k > 0:
-            a, b = max(a, e - step[k - 1]), min(b, e + step[k - 1])
+            step = r * (tk - prev_t)
+            a, b = max(a, e - step), min(b, e + step)
         if a > b + 1e-9:
             return None
         e = min(max(0.0, a), b)
         path[k] = e
-    return path
+        prev_t = tk
+    return np.array(path)
+
+
+def _track_room(line, s_e: np.ndarray, room: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (K,) [m]: where the ego's CoG may be across the line at its predicted arc
+    lengths `s_e`, `room` [m] inside both boundaries, the narrowest over each stage's
+    neighbourhood (half-way to the stages beside it: the track may narrow between them)."""
+    mid = 0.5 * (s_e[1:] + s_e[:-1])
+    w_r, w_l = line.interp_width(np.concatenate([s_e, mid]))
+    K = len(s_e)
+    wr, wl = np.asarray(w_r, dtype=float), np.asarray(w_l, dtype=float)
+    r_k, r_m = wr[:K].copy(), wr[K:]
+    l_k, l_m = wl[:K].copy(), wl[K:]
+    r_k[1:] = np.minimum(r_k[1:], r_m)
+    r_k[:-1] = np.minimum(r_k[:-1], r_m)
+    l_k[1:] = np.minimum(l_k[1:], l_m)
+    l_k[:-1] = np.minimum(l_k[:-1], l_m)
+    return -(l_k - room), r_k - room
 
 
 def plan_around(
@@ -204,74 +255,205 @@ def plan_around(
     length = 0.5 * (p.ego_length_m + np.array([o.length_m for o in opponents]))[:, None]
     width = 0.5 * (p.ego_width_m + np.array([o.width_m for o in opponents]))[:, None]
     clear = width + p.margin_lateral_m  # (J, 1)
-    near = (ds > -(length + p.margin_longitudinal_m)) & (
-        ds < length + p.margin_longitudinal_m + p.gap_time_s * v_e[None, :]
-    )  # (J, K)
+    beside_m = length + p.margin_longitudinal_m  # (J, 1): closer than this is side by side
+    near = (ds > -beside_m) & (ds < beside_m + p.gap_time_s * v_e[None, :])  # (J, K)
     if not near.any():
         return FREE
-    beside = np.abs(ds) < length + p.margin_longitudinal_m  # (J, K): side by side
-    w_r, w_l = line.interp_width(s_e)
-    room = 0.5 * p.ego_width_m + p.wall_margin_m
-    lo_track = -(np.asarray(w_l, dtype=float) - room)
-    hi_track = np.asarray(w_r, dtype=float) - room
+    beside = np.abs(ds) < beside_m  # (J, K): side by side
+    lo_track, hi_track = _track_room(line, s_e, 0.5 * p.ego_width_m + p.wall_margin_m)
     ids = tuple(o.id for o, n in zip(opponents, near.any(axis=1), strict=True) if n)
-    best: tuple[float, np.ndarray, str] | None = None
-    # each opponent passed on its left (-1: smaller e) or right (+1); two opponents: the
-    # four combinations
     J = len(opponents)
-    for sides in np.ndindex(*(2,) * J):
-        lo, hi = lo_track.copy(), hi_track.copy()
-        for j, side in enumerate(sides):
-            nj = beside[j]
-            if side:  # right of it
-                lo = np.where(nj, np.maximum(lo, e_o[j] + clear[j, 0]), lo)
-            else:
-                hi = np.where(nj, np.minimum(hi, e_o[j] - clear[j, 0]), hi)
-        path = corridor_path(e_e_m, lo, hi, t, p)
-        if path is None:
-            continue
-        side_sign = 1.0 if sum(sides) * 2 >= J else -1.0
-        cost = float(np.mean(np.abs(path)))
-        if abs(previous_offset_m) > 0.05 and np.sign(previous_offset_m) != side_sign:
-            cost += p.change_weight
-        if best is None or cost < best[0]:
-            best = (cost, path, "pass")
     look = min(len(t) - 1, max(1, round(p.target_time_s / p.stage_s)))
+    best: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None = None
+    # a pass must be over within the horizon (no car still beside at its end): one that
+    # is not could end squeezed between a car and a wall
+    if not beside[:, -1].any():
+        # each opponent passed on its left (-1: smaller e) or right (+1); two opponents:
+        # the four combinations
+        # where the ego is now is allowed while it cannot move yet: a bound it misses now
+        # (tracking errors) it must leave at its lateral rate
+        away = p.lateral_rate_mps * np.maximum(t - p.lateral_lag_s, 0.0)
+        lo_reach, hi_reach = e_e_m - away, e_e_m + away
+        if e_e_m < lo_track[0]:
+            lo_track = np.minimum(lo_track, hi_reach)
+        if e_e_m > hi_track[0]:
+            hi_track = np.maximum(hi_track, lo_reach)
+        kappa = np.asarray(ref.at("kappa", s_e), dtype=float)
+
+        def bounds(sides: tuple[int, ...], by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            lo, hi = lo_track.copy(), hi_track.copy()
+            for j, side in enumerate(sides):
+                nj = by[j]
+                if not nj.any():
+                    continue
+                if side:  # right of it
+                    need = e_o[j] + clear[j, 0]
+                    if e_e_m > e_o[j, 0]:  # on that side already
+                        need = np.minimum(need, hi_reach)
+                    lo = np.where(nj, np.maximum(lo, need), lo)
+                else:
+                    need = e_o[j] - clear[j, 0]
+                    if e_e_m < e_o[j, 0]:
+                        need = np.maximum(need, lo_reach)
+                    hi = np.where(nj, np.minimum(hi, need), hi)
+            return lo, hi
+
+        for sides in np.ndindex(*(2,) * J):
+            lo, hi = bounds(sides, beside)
+            path = corridor_path(e_e_m, lo, hi, t, p)
+            if path is None:
+                continue
+            # the ego's progress along the line on that path (step 3b): the pass must be
+            # over within the horizon with it too
+            s_p = _progress_on(s_e, kappa, path, p)
+            ds_p = (np.stack([o.s_m for o in opponents]) - s_p[None, :] + 0.5 * L_line) % (
+                L_line) - 0.5 * L_line
+            beside_p = np.abs(ds_p) < beside_m
+            if beside_p[:, -1].any():
+                continue
+            if (beside_p & ~beside).any():
+                lo, hi = bounds(sides, beside_p | beside)
+                path = corridor_path(e_e_m, lo, hi, t, p)
+                if path is None:
+                    continue
+            side_sign = 1.0 if sum(sides) * 2 >= J else -1.0
+            cost = float(np.mean(np.abs(path)))
+            if abs(previous_offset_m) > 0.05 and np.sign(previous_offset_m) != side_sign:
+                cost += p.change_weight
+            if best is None or cost < best[0]:
+                best = (cost, path, lo, hi)
     if best is not None:
         path = best[1]
         # move out early: aim at where the car must be when it comes beside (the lazy
         # path leaves the line at the last moment, and the real car lags the plan)
         first = np.nonzero(beside.any(axis=0))[0]
         k = max(look, int(first[0])) if first.size else look
+        # with room to spare beside them where the corridor has it (the lazy path runs
+        # on its edge, and tracking errors would eat the margin)
+        lo, hi = best[2], best[3]
+        if first.size:
+            win = slice(int(first[0]), int(np.nonzero(beside.any(axis=0))[0][-1]) + 1)
+            if path[k] > 0.0:
+                d_k = float(path[k]) + min(p.pass_extra_m, max(0.0, float(hi[win].min()
+                                                                    - path[k])))
+            else:
+                d_k = float(path[k]) - min(p.pass_extra_m, max(0.0, float(path[k]
+                                                                    - lo[win].max())))
+        else:
+            d_k = float(path[k])
         # ... but inside the track over the way there
-        d = min(max(float(path[k]), float(lo_track[: k + 1].max())),
-                float(hi_track[: k + 1].min()))
+        d = min(max(d_k, float(lo_track[: k + 1].max())), float(hi_track[: k + 1].min()))
         cap = _cap_now(ds, e_o, e_e_m, width, length, opponents, p)
         mode = "pass" if np.max(np.abs(path)) > 0.02 else "line"
         return OvertakePlan(d, cap, _curve_factor(ref, s_e, path, p), mode, ids)
-    # no safe pass: follow, back towards the line where the track allows, but staying on
-    # its side of a car it overlaps now (never squeezed into it: the walls give way first)
+    return _follow(ref, s_e, e_e_m, ds, e_o, clear, beside_m, near, length, width,
+                   lo_track, hi_track, t, look, opponents, ids, p)
+
+
+def _progress_on(
+    s_e: np.ndarray, kappa: np.ndarray, path: np.ndarray, p: OvertakeParams
+) -> np.ndarray:
+    """(K,) the ego's arc length along the line [m] when it drives the lateral `path` (K,)
+    [m] instead of the line (step 3b of the module docstring): each stage's advance of
+    `s_e` (K,) times ``f / (1 + kappa e)``, the bend's speed factor ``f`` (step 5) over
+    the path's length per metre of line (`kappa` (K,) the line's curvature at `s_e`): the
+    outside of a bend is longer at the same speed, the inside shorter but slower."""
+    q = np.maximum(1.0 + kappa[:-1] * 0.5 * (path[:-1] + path[1:]), 0.3)
+    f = np.sqrt(np.clip(q, p.curve_factor_min**2, 1.0))
+    steps = np.diff(s_e) * f / q
+    out = np.empty_like(s_e)
+    out[0] = s_e[0]
+    out[1:] = s_e[0] + np.cumsum(steps)
+    return out
+
+
+def _follow(
+    ref: ReferenceLap,
+    s_e: np.ndarray,
+    e_e: float,
+    ds: np.ndarray,
+    e_o: np.ndarray,
+    clear: np.ndarray,
+    beside_m: np.ndarray,
+    near: np.ndarray,
+    length: np.ndarray,
+    width: np.ndarray,
+    lo_track: np.ndarray,
+    hi_track: np.ndarray,
+    t: np.ndarray,
+    look: int,
+    opponents: list[OpponentPrediction],
+    ids: tuple[int, ...],
+    p: OvertakeParams,
+) -> OvertakePlan:
+    """No safe pass: follow (step 4 of the module docstring), ready to pass.
+
+    Lateral: on its side of a car it overlaps now (never squeezed into it: the walls give
+    way first); else, behind the nearest car ahead, beside its line (``clear`` off it) on
+    the side with room for the longest over the horizon when that is at least
+    ``ready_time_s`` (the slipstream position: a pass that becomes possible starts with no
+    lateral move), else towards the line. Speed: behind a car in lateral conflict the
+    follow gap; laterally clear of it, no closer than just behind side by side
+    (``ready_gap_m``); beside a car with the ego's centre behind its, dropping back.
+    """
+    J = len(opponents)
     lo, hi = lo_track.copy(), hi_track.copy()
+    overlapping = False
     for j in range(J):
-        if abs(ds[j, 0]) < length[j, 0] + p.margin_longitudinal_m:
-            if e_e_m >= e_o[j, 0]:
+        if abs(ds[j, 0]) < beside_m[j, 0]:
+            overlapping = True
+            if e_e >= e_o[j, 0]:
                 lo = np.maximum(lo, e_o[j] + clear[j, 0])
             else:
                 hi = np.minimum(hi, e_o[j] - clear[j, 0])
-    path = corridor_path(e_e_m, lo, hi, t, p)
+    target = 0.0
+    ahead = [j for j in range(J) if near[j].any() and ds[j, 0] > 0.0]
+    if not overlapping and ahead and p.ready_time_s > 0.0:
+        j = min(ahead, key=lambda i: ds[i, 0])
+        rooms = (hi_track - (e_o[j] + clear[j, 0]), (e_o[j] - clear[j, 0]) - lo_track)
+        runs = []
+        for room in rooms:
+            bad = np.nonzero(room < 0.0)[0]
+            runs.append(t[bad[0]] if bad.size else t[-1] + p.stage_s)
+        side = int(np.argmax(runs))
+        if runs[side] >= p.ready_time_s:
+            off = clear[j, 0] + READY_EXTRA_M
+            target = float(e_o[j, 0] + (off if side == 0 else -off))
+    lo_t, hi_t = lo - target, hi - target
+    path = corridor_path(e_e - target, lo_t, hi_t, t, p)
     if path is None:  # the walls give way first
-        path = corridor_path(e_e_m, lo - 10.0 * (lo > lo_track), hi + 10.0 * (hi < hi_track),
-                             t, p)
-    if path is None:
-        path = np.full(len(t), e_e_m)
+        path = corridor_path(e_e - target, lo_t - 10.0 * (lo > lo_track),
+                             hi_t + 10.0 * (hi < hi_track), t, p)
+    path = np.full(len(t), e_e) if path is None else path + target
     d = float(path[look])
     cap = math.inf
     for j, o in enumerate(opponents):
-        hit = near[j] & (ds[j] > 0.0) & (np.abs(path - e_o[j]) < clear[j, 0])
-        if hit.any():
-            cap = min(cap, _follow_speed(float(ds[j, 0]), o.v_s_mps, float(length[j, 0]), p))
-    cap = min(cap, _cap_now(ds, e_o, e_e_m, width, length, opponents, p))
+        if not near[j].any():
+            continue
+        ds0 = float(ds[j, 0])
+        if abs(ds0) < beside_m[j, 0]:  # side by side now
+            if ds0 > 0.0:  # its centre ahead of the ego's: drop back
+                cap = min(cap, max(0.0, o.v_s_mps - p.drop_back_mps))
+            continue
+        if ds0 <= 0.0:
+            continue
+        tight = clear[j, 0] - READY_EXTRA_M  # the ready position is not a conflict
+        conflict = near[j] & (ds[j] > 0.0) & (np.abs(path - e_o[j]) < tight)
+        close = ds0 < float(length[j, 0]) + p.gap_min_m + p.gap_time_s * o.v_s_mps
+        if conflict.any() or (close and abs(e_e - e_o[j, 0]) < tight):
+            cap = min(cap, _follow_speed(ds0, _speed_soon(o, p), float(length[j, 0]), p))
+        else:  # the ready position: just behind side by side
+            gap = ds0 - float(beside_m[j, 0]) - p.ready_gap_m
+            cap = min(cap, max(0.0, o.v_s_mps + p.gain_gap_per_s * gap))
     return OvertakePlan(d, cap, _curve_factor(ref, s_e, path, p), "follow", ids)
+
+
+def _speed_soon(o: OpponentPrediction, p: OvertakeParams) -> float:
+    """The opponent's progress speed [m/s]: its speed now, or the mean of its predicted
+    next ``SOON_S`` when lower (it brakes for a bend: the follower slows with it, not
+    after it)."""
+    k = min(len(o.s_m) - 1, max(1, round(SOON_S / p.stage_s)))
+    return min(o.v_s_mps, float(o.s_m[k] - o.s_m[0]) / (k * p.stage_s))
 
 
 def _follow_speed(ds0: float, v_o: float, length: float, p: OvertakeParams) -> float:
@@ -289,11 +471,13 @@ def _cap_now(
     opponents: list[OpponentPrediction],
     p: OvertakeParams,
 ) -> float:
-    """The follow cap behind every opponent ahead in lateral conflict at stage 0."""
+    """The follow cap behind every opponent ahead in lateral conflict at stage 0 (not one
+    side by side already: braking there only lets it run into the ego)."""
     cap = math.inf
     for j, o in enumerate(opponents):
-        if ds[j, 0] > 0.0 and abs(e_e - e_o[j, 0]) < width[j, 0] + p.margin_lateral_m:
-            cap = min(cap, _follow_speed(float(ds[j, 0]), o.v_s_mps, float(length[j, 0]), p))
+        if ds[j, 0] > length[j, 0] and abs(e_e - e_o[j, 0]) < width[j, 0] + p.margin_lateral_m:
+            cap = min(cap, _follow_speed(float(ds[j, 0]), _speed_soon(o, p),
+                                         float(length[j, 0]), p))
     return cap
 
 

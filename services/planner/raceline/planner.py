@@ -536,6 +536,16 @@ class RacelinePlanner:
         w = (ratio - scales[i]) / (scales[i + 1] - scales[i])
         return (1.0 - w) * lo.steering_rad + w * hi_rad
 
+    def _offset_steering(self, s_m: float) -> float:
+        """The kinematic steering [rad] the offset path needs beyond the line's at `s_m`:
+        ``(l_f + l_r) (kappa / (1 + kappa d) - kappa)`` with ``d`` the offset (right +,
+        ``kappa`` left +: inside a left bend the radius is ``1 / kappa + d``, smaller); the
+        line's feed-forward alone would leave the feedback ``k_e`` to make it up, a steady
+        error towards the line (towards the car being passed)."""
+        kappa = float(self.raceline.reference.at("kappa", s_m))
+        denom = max(1.0 + kappa * self._offset, 0.3)
+        return (self.vehicle.lf_m + self.vehicle.lr_m) * (kappa / denom - kappa)
+
     def prepare(self) -> None:
         """Nothing to do ahead of time (the ``Planner`` interface)."""
 
@@ -610,6 +620,8 @@ class RacelinePlanner:
             speed = min(speed * plan.speed_factor, plan.speed_cap_mps)
             if speed < tc.speed_mps - 0.05:
                 steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m, speed, steering)
+        if self._offset != 0.0:  # the offset path bends more (less) than the line
+            steering += self._offset_steering(tc.s_m)
         speed = min(max(speed, self._speed_lim[0]), self._speed_lim[1])
         if self._joining:  # peaky tyres reach the line slowly, then ramp from there
             if abs(tc.e_m) > JOIN_TOLERANCE_M:

@@ -91,6 +91,9 @@ class HeadToHeadOptions:
         source: the ego's view of the opponent ("truth" or "lidar").
         opponent_aware: the opponent also plans around the ego (when it can).
         compute_delay_s: the previous command acts this long into each tick [s].
+        stop_lead_m: end a start early once the ego has overtaken and leads by this much
+            [m] (None: race all the laps; the rest is the ego's solo lap, so a long track
+            can be raced over many seeds: the figures then cover the start to there).
     """
 
     laps: int = 2
@@ -100,6 +103,7 @@ class HeadToHeadOptions:
     source: str = "truth"
     opponent_aware: bool = False
     compute_delay_s: float = 0.002
+    stop_lead_m: float | None = None
 
 
 @dataclass
@@ -118,6 +122,7 @@ class SeedResult:
     opponent_off_track: int = 0
     id_changes: int | None = None
     aborted: str = ""
+    stopped_at_lead: bool = False
     times_s: list[float] = field(default_factory=list, repr=False)
 
 
@@ -283,6 +288,9 @@ def race_seed(
                 res.first_overtake_laps = round(dist / L, 3)
         elif ahead and lead < -CAR.length_m:
             ahead = False
+        if ahead and opts.stop_lead_m is not None and lead >= opts.stop_lead_m:
+            res.stopped_at_lead = True
+            break
         if _takes_opponents(ego):
             if view is not None:
                 ego.set_opponents(view.estimates(t, cars[0].centre(), cars[1].centre()[None]))
@@ -357,7 +365,7 @@ def summarise(seeds: list[SeedResult], solo_s: float, laps: int) -> dict:
     within = [s for s in seeds if s.first_overtake_laps is not None
               and s.first_overtake_laps <= laps]
     firsts = [s.first_overtake_laps for s in seeds if s.first_overtake_laps is not None]
-    lost = [s.ego_time_s - solo_s for s in seeds if not s.aborted]
+    lost = [s.ego_time_s - solo_s for s in seeds if not s.aborted and not s.stopped_at_lead]
     ids = [s.id_changes for s in seeds if s.id_changes is not None]
     return {
         "seeds": n,
