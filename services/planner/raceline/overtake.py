@@ -145,6 +145,9 @@ class OvertakePlan:
 FREE = OvertakePlan(0.0, math.inf, 1.0, "line")
 #: The ready position keeps this much more than ``W + m_lat`` from the car's line [m].
 READY_EXTRA_M = 0.02
+#: The ready position only where the ego's progress beside the line is at least this
+#: share of its progress on it (``_progress_on``'s factor, the mean over the run) [1].
+READY_MIN_PROGRESS = 0.97
 #: The follow cap reads the opponent's speed this far ahead in its prediction [s].
 SOON_S = 0.4
 
@@ -416,9 +419,16 @@ def _follow(
             bad = np.nonzero(room < 0.0)[0]
             runs.append(t[bad[0]] if bad.size else t[-1] + p.stage_s)
         side = int(np.argmax(runs))
-        if runs[side] >= p.ready_time_s:
-            off = clear[j, 0] + READY_EXTRA_M
-            target = float(e_o[j, 0] + (off if side == 0 else -off))
+        off = clear[j, 0] + READY_EXTRA_M
+        e_ready = e_o[j] + (off if side == 0 else -off)
+        # ... and not where that side is the outside of a bend: waiting there the ego
+        # loses ground instead of closing in
+        n = max(1, int(np.searchsorted(t, runs[side])))
+        k_n = np.asarray(ref.at("kappa", s_e[:n]), dtype=float)
+        q = np.maximum(1.0 + k_n * e_ready[:n], 0.3)
+        gain = float(np.mean(np.sqrt(np.clip(q, p.curve_factor_min**2, 1.0)) / q))
+        if runs[side] >= p.ready_time_s and gain >= READY_MIN_PROGRESS:
+            target = float(e_ready[0])
     lo_t, hi_t = lo - target, hi - target
     path = corridor_path(e_e - target, lo_t, hi_t, t, p)
     if path is None:  # the walls give way first

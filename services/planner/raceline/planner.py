@@ -692,13 +692,17 @@ class RacelinePlanner:
             s_k = s_line
             s_prog = s_track
             states[0] = (x, y, yaw, s_track)
-            for k in range(1, N + 1):
+            s_all, v_all, prog = np.empty(N), np.empty(N), np.empty(N)
+            for k in range(N):  # the profile's speed at each step (sequential)
                 v = self.raceline.speed_at(s_k)
                 s_k += v * dt
                 s_prog += v * dt
-                px, py = line.point_at(s_k)
-                states[k] = (float(px), float(py), float(line.heading_at(s_k)), s_prog)
-                inputs[k - 1] = (v, cmd.steering_rad if k == 1 else 0.0, v)
+                s_all[k], v_all[k], prog[k] = s_k, v, s_prog
+            states[1:, :2] = line.point_at(s_all)  # the points, all at once
+            states[1:, 2] = line.heading_at(s_all)
+            states[1:, 3] = prog
+            inputs[:, 0] = inputs[:, 2] = v_all
+            inputs[0, 1] = cmd.steering_rad
         beta = np.full(N, float(self.profile.beta_at(s_track)))
         return SolveResult(
             command=cmd,
