@@ -216,3 +216,12 @@ def test_the_offset_path_gets_its_own_feed_forward_steering() -> None:
     assert ego._offset_steering(s) > 0.0
     ego._offset = 0.3
     assert ego._offset_steering(s) < 0.0
+
+
+def test_a_start_can_end_once_the_ego_has_passed_and_leads() -> None:
+    track = stadium(half_width_m=1.0)
+    ego = RacelinePlanner(track, PLANNER, vehicle=F1TENTH_GYM)
+    opts = HeadToHeadOptions(laps=1, gap_m=(10.0, 10.0001), stop_lead_m=2.0)
+    r = race_seed(ego, StoppedCar(PLANNER), track, SimulatorSettings(), opts, seed=0)
+    assert r.overtakes == 1 and r.stopped_at_lead and r.contacts == 0
+    assert 12.0 < r.ego_distance_m < 0.5 * track.length_m
