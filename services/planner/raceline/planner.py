@@ -100,6 +100,8 @@ JOIN_TOLERANCE_M = 0.05
 #: Speed scales of the steering feed-forward tables used below the line's speed (a car
 #: held behind an opponent, ``RacelinePlanner._slow_steering``).
 FEED_FORWARD_SCALES = (0.4, 0.55, 0.7, 0.85, 1.0)
+#: How far ahead the offset from the line is kept inside the track [s of the line's speed].
+OFFSET_ROOM_S = 1.0
 #: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
 MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
 
@@ -536,6 +538,19 @@ class RacelinePlanner:
         w = (ratio - scales[i]) / (scales[i + 1] - scales[i])
         return (1.0 - w) * lo.steering_rad + w * hi_rad
 
+    def _offset_room(self, s_m: float) -> tuple[float, float]:
+        """(lo, hi) [m]: the offsets from the line (right +) that keep the car's footprint
+        ``wall_margin_m`` inside both boundaries over the next ``OFFSET_ROOM_S`` at the
+        line's speed from `s_m` (a car back on its own after a pass returns to the line at
+        its lateral rate, and the track may narrow faster)."""
+        p = self.overtake
+        line = self.raceline.track
+        v = max(float(self.raceline.reference.at("v", s_m)), 1.0)
+        s = s_m + np.linspace(0.0, OFFSET_ROOM_S * v, 6)
+        w_r, w_l = line.interp_width(s)
+        room = 0.5 * p.ego_width_m + p.wall_margin_m
+        return -(float(np.min(w_l)) - room), float(np.min(w_r)) - room
+
     def _offset_steering(self, s_m: float) -> float:
         """The kinematic steering [rad] the offset path needs beyond the line's at `s_m`:
         ``(l_f + l_r) (kappa / (1 + kappa d) - kappa)`` with ``d`` the offset (right +,
@@ -607,9 +622,17 @@ class RacelinePlanner:
             self._handover.start(self._speed_cmd)
             self._joining = ramps_from_rest(self.vehicle)
         plan = self.plan = self._plan_around(cx, cy, hint)
-        if plan is not FREE or self._offset != 0.0:  # ramp the offset towards the plan's
-            step = 2.0 * self.overtake.lateral_rate_mps * self.settings.dt_s
+        if plan is not FREE or self._offset != 0.0:  # ramp the offset towards the plan's:
+            # out twice as fast as the plan assumes (the car lags it), back towards the
+            # line at its rate (a fast swing back turns the car's corners over the wall)
+            out = abs(plan.offset_m) > abs(self._offset)
+            rate = self.overtake.lateral_rate_mps * (2.0 if out else 1.0)
+            step = rate * self.settings.dt_s
             self._offset += min(max(plan.offset_m - self._offset, -step), step)
+            if plan is FREE:  # nobody near: back inside the track ahead (a pass or a
+                # follow plans its corridor inside it itself)
+                lo, hi = self._offset_room(hint if hint is not None else 0.0)
+                self._offset = min(max(self._offset, lo), hi)
         tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset,
                                   speed_scale=self.speed_scale)
         self._s_line = tc.s_m
