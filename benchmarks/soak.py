@@ -406,8 +406,9 @@ def run(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=30.0, help="racing time [min]")
-    ap.add_argument("--warmup-min", type=float, default=5.0,
-                    help="growth is measured from this time on [min]")
+    ap.add_argument("--warmup-min", type=float, default=None,
+                    help="growth is measured from this time on [min] (default: 5 min, or "
+                         "a third of --minutes when that is shorter than 15)")
     ap.add_argument("--sample-s", type=float, default=10.0, help="RSS sample period [s]")
     ap.add_argument("--track", default="builtin:paperlike", help="track to race")
     ap.add_argument("--laps", type=int, default=100_000,
@@ -428,7 +429,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="TOML appended to the run's configuration, e.g. "
                          "'[processes.simulator]\\nrealtime_priority = 10' (default: none)")
     ap.add_argument("--out", help="folder for the run, its log and soak.json (default: temp)")
-    return run(ap.parse_args(argv))
+    args = ap.parse_args(argv)
+    if args.warmup_min is None:
+        args.warmup_min = min(5.0, args.minutes / 3.0)
+    if not 0.0 <= args.warmup_min < args.minutes:
+        ap.error(f"--warmup-min {args.warmup_min:g} must be shorter than --minutes "
+                 f"{args.minutes:g} (no memory sample would follow the warm-up)")
+    return run(args)
 
 
 if __name__ == "__main__":
