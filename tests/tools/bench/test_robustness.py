@@ -202,6 +202,23 @@ def test_the_cap_follows_v_max_for_every_method_and_the_limit() -> None:
     assert plain.planner.cimpcc.v_up_mps[0] == pytest.approx(4.18)
 
 
+def test_a_coarser_grid_puts_the_limit_and_the_raceline_s_line_on_it() -> None:
+    cfg = rb.config_for("default", 10.0, 0.25)
+    assert cfg.planner.raceline.ds_m == pytest.approx(0.25)
+    assert limit_request(cfg.planner, cfg.simulator.vehicle, 0.25).settings.ds_m == 0.25
+    matrix = rb.Matrix(("paperlike",), ("default",), ("truth",), (RACELINE,), 1, 10.0, 0.25)
+    tasks = rb.lap_tasks(matrix)
+    assert sorted(t.use for t in tasks) == sorted(["limit", RACELINE])
+    assert all(t.settings.ds_m == pytest.approx(0.25) for t in tasks)
+    assert all(t.settings.v_max_mps == pytest.approx(10.0) for t in tasks)
+    args = rb.build_parser().parse_args(["--tracks", "paperlike", "--min-time-ds", "0.25"])
+    assert rb.matrix_from_args(args).ds_m == 0.25
+    assert rb.config_for("default").planner.raceline.ds_m == pytest.approx(0.1)
+    with pytest.raises(rb.BenchError, match="min-time-ds"):
+        rb.matrix_from_args(rb.build_parser().parse_args(["--tracks", "paperlike",
+                                                          "--min-time-ds", "5"]))
+
+
 def test_the_cars_of_the_matrix() -> None:
     assert rb.config_for("linear").vehicle.tyre_model == "linear"
     assert not rb.config_for("linear").simulates_another_car
