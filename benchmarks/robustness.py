@@ -120,6 +120,10 @@ RATIO_TARGETS = {"truth": 1.03, "ekf": 1.05, "lidar": 1.06}
 MISMATCH_RATIO_TARGET = 1.15
 #: The whole matrix's wall time target here [s] (the minimum-time laps cached, both cores).
 MATRIX_WALL_TARGET_S = 30 * 60.0
+#: A cell's wall time per metre of track relative to the true pose's (the medians of the
+#: matrix's cells by pose: the EKF about doubles it, the lidar's scans and particle filter
+#: about six times it); ``cell_order`` schedules the costly cells first.
+POSE_COST = {"truth": 1.0, "ekf": 2.0, "lidar": 6.0}
 
 
 
@@ -423,6 +427,21 @@ def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
         "methods": methods,
         "wall_s": round(time.perf_counter() - t0, 2),
     }
+
+
+def cell_order(cells: list[Cell], length_m: Callable[[str], float]) -> list[Cell]:
+    """`cells` in the order the workers take them: the (track, car) groups by their
+    estimated cost (track length x ``POSE_COST`` of their poses), the costliest first, each
+    group's cells together (its track, lines and planners are set up once per worker) and
+    its costliest first; so the workers do not end on one long lidar cell."""
+    def cost(c: Cell) -> float:
+        return length_m(c.track) * POSE_COST.get(c.pose, 1.0)
+
+    groups: dict[tuple[str, str], list[Cell]] = {}
+    for c in cells:
+        groups.setdefault((c.track, c.car), []).append(c)
+    ordered = sorted(groups.values(), key=lambda g: -sum(cost(c) for c in g))
+    return [c for g in ordered for c in sorted(g, key=lambda c: -cost(c))]
 
 
 def _run_cell_task(args: tuple[Cell, Matrix]) -> dict[str, Any]:
@@ -763,9 +782,9 @@ def run_matrix(matrix: Matrix, out_dir: Path, jobs: int = 2, resume: bool = Fals
         jsonl.unlink()
     wanted = {c.key for c in matrix.cells()}
     cells = [c for k, c in done.items() if k in wanted]
-    todo = [c for c in matrix.cells() if c.key not in done]
-    # the longest tracks first, so the two workers finish together
-    todo.sort(key=lambda c: -_track(c.track).length_m)
+    # the costliest first, so the two workers finish together
+    todo = cell_order([c for c in matrix.cells() if c.key not in done],
+                      lambda t: _track(t).length_m)
     _say(f"phase 2: {len(todo)} cells ({len(cells)} from {jsonl.name}) in {jobs} workers ...")
     t1 = time.perf_counter()
     with jsonl.open("a", encoding="utf-8") as fh:

@@ -219,6 +219,18 @@ def test_a_coarser_grid_puts_the_limit_and_the_raceline_s_line_on_it() -> None:
                                                           "--min-time-ds", "5"]))
 
 
+def test_the_costliest_cells_go_first_each_track_and_car_together() -> None:
+    cells = rb.Matrix(("a", "b"), ("default", "linear"), ("truth", "ekf", "lidar"),
+                      (RACELINE,)).cells()
+    length = {"a": 100.0, "b": 30.0}
+    order = rb.cell_order(cells, length.__getitem__)
+    assert sorted(order, key=lambda c: c.key) == sorted(cells, key=lambda c: c.key)
+    assert [(c.track, c.pose) for c in order[:3]] == [("a", "lidar"), ("a", "ekf"),
+                                                      ("a", "truth")]
+    assert len({(c.track, c.car) for c in order[:3]}) == 1  # one group at a time
+    assert [c.track for c in order] == ["a"] * 6 + ["b"] * 6
+
+
 def test_the_cars_of_the_matrix() -> None:
     assert rb.config_for("linear").vehicle.tyre_model == "linear"
     assert not rb.config_for("linear").simulates_another_car
