@@ -404,6 +404,7 @@ def tracker_gains(settings: RacelineSettings) -> TrackerGains:
         lookahead_min_m=settings.lookahead_min_m,
         lookahead_max_m=settings.lookahead_max_m,
         k_outward_per_s2=settings.k_outward_per_s2,
+        k_lateral_speed_mps=settings.k_lateral_speed_mps,
     )
 
 
