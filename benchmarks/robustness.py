@@ -39,7 +39,8 @@ The cap: the configuration's (``[planner.cimpcc] v_up_mps[0]``, 4.18 m/s) unless
 sets every method's: ``[planner.cimpcc] v_up_mps`` (the tuner's pair, v_l = 1.1 v_p),
 ``[planner.cimpcc_line] v_max_mps`` and ``[planner.raceline] v_max_mps`` (``cap_overlay``);
 the limit is then solved at that top speed too. MPCC's fixed speed reference is no cap and
-stays.
+stays. ``--min-time-ds`` puts the limit's and the raceline's minimum-time laps on a coarser
+grid (``[planner.raceline] ds_m``; the 260-460 m F1TENTH maps); cimpcc-line's line keeps 0.1 m.
 
 Two phases: first every minimum-time lap the cells read (each car's limit and the planners'
 lines), solved once and cached (``services.planner.make_min_time_lap``), in ``--jobs``
@@ -119,6 +120,10 @@ RATIO_TARGETS = {"truth": 1.03, "ekf": 1.05, "lidar": 1.06}
 MISMATCH_RATIO_TARGET = 1.15
 #: The whole matrix's wall time target here [s] (the minimum-time laps cached, both cores).
 MATRIX_WALL_TARGET_S = 30 * 60.0
+#: A cell's wall time per metre of track relative to the true pose's (the medians of the
+#: matrix's cells by pose: the EKF about doubles it, the lidar's scans and particle filter
+#: about six times it); ``cell_order`` schedules the costly cells first.
+POSE_COST = {"truth": 1.0, "ekf": 2.0, "lidar": 6.0}
 
 
 
@@ -187,9 +192,20 @@ def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def config_for(car: str, v_max_mps: float | None = None) -> RacestackConfig:
-    """The validated configuration of `car` (``CARS``) at cap `v_max_mps` (None: 4.18)."""
-    return config_from_dict(_merge(CARS[car].tables, cap_overlay(v_max_mps)))
+def grid_overlay(ds_m: float | None) -> dict[str, Any]:
+    """The planner table that puts the raceline's line on grid `ds_m` [m] (``--min-time-ds``;
+    the limit's grid goes through ``limit_request``); {} for None."""
+    if ds_m is None:
+        return {}
+    return {"planner": {METHODS[RACELINE].section: {"ds_m": ds_m}}}
+
+
+def config_for(car: str, v_max_mps: float | None = None, ds_m: float | None = None
+               ) -> RacestackConfig:
+    """The validated configuration of `car` (``CARS``) at cap `v_max_mps` (None: 4.18),
+    the raceline's line on grid `ds_m` (None: its own)."""
+    tables = _merge(_merge(CARS[car].tables, cap_overlay(v_max_mps)), grid_overlay(ds_m))
+    return config_from_dict(tables)
 
 
 @dataclass(frozen=True)
@@ -216,6 +232,7 @@ class Matrix:
     methods: tuple[str, ...]
     laps: int = 2
     v_max_mps: float | None = None
+    ds_m: float | None = None
 
     def cells(self) -> list[Cell]:
         """Every cell, track-major (the same track and car next to each other)."""
@@ -300,8 +317,8 @@ def lap_tasks(matrix: Matrix) -> list[LapTask]:
     method's line for the planners' car, the longest tracks first."""
     tasks: dict[str, LapTask] = {}
     for car in matrix.cars:
-        cfg = config_for(car, matrix.v_max_mps)
-        wanted = [("limit", *limit_request(cfg.planner, cfg.simulator.vehicle))]
+        cfg = config_for(car, matrix.v_max_mps, matrix.ds_m)
+        wanted = [("limit", *limit_request(cfg.planner, cfg.simulator.vehicle, matrix.ds_m))]
         for pose in matrix.poses:  # the pose source's margin (``for_pose_source``)
             planner = for_pose_source(cfg.planner, pose)
             for method in matrix.methods:
@@ -340,35 +357,36 @@ def solve_lap(task: LapTask) -> dict[str, Any]:
 
 # -------------------------------------------------------------------- phase 2: the cells
 #: Per worker: the track, configuration, planner pool and limit of the last (track, car)s.
-_SETUPS: dict[tuple[str, str, float | None], tuple[Track, RacestackConfig, PlannerPool,
-                                                    dict | None, str, float]] = {}
+_SETUPS: dict[tuple[str, str, float | None, float | None],
+              tuple[Track, RacestackConfig, PlannerPool, dict | None, str, float]] = {}
 
 
-def _setup(track_spec: str, car: str, v_max: float | None):
-    key = (track_spec, car, v_max)
+def _setup(track_spec: str, car: str, v_max: float | None, ds_m: float | None = None):
+    key = (track_spec, car, v_max, ds_m)
     if key not in _SETUPS:
         if len(_SETUPS) >= 4:
             _SETUPS.pop(next(iter(_SETUPS)))
         track = _track(track_spec)
-        cfg = config_for(car, v_max)
+        cfg = config_for(car, v_max, ds_m)
         said = io.StringIO()
         with contextlib.redirect_stderr(said):
-            ref = min_time_reference(track, cfg)
+            ref = min_time_reference(track, cfg, ds_m=ds_m)
         note = "" if ref is not None else said.getvalue().strip().splitlines()[-1]
-        limit = _limit_lap(track, cfg)
+        limit = _limit_lap(track, cfg, ds_m)
         lap_slip = None if limit is None else lap_rear_slip_rad(limit, cfg.simulator.vehicle)
         peak = rear_peak_slip_rad(cfg.simulator.vehicle, lap_slip)
         _SETUPS[key] = (track, cfg, PlannerPool(track, cfg.vehicle), ref, note, peak)
     return _SETUPS[key]
 
 
-def _limit_lap(track: Track, cfg: RacestackConfig) -> MinTimeLap | None:
+def _limit_lap(track: Track, cfg: RacestackConfig, ds_m: float | None = None
+               ) -> MinTimeLap | None:
     """The simulated car's limit (cached by phase 1), for the linear tyres' reference slip;
     None for the other tyres or when it cannot be made."""
     if cfg.simulator.vehicle.tyre_model != "linear":
         return None
     try:
-        car, settings = limit_request(cfg.planner, cfg.simulator.vehicle)
+        car, settings = limit_request(cfg.planner, cfg.simulator.vehicle, ds_m)
         return make_min_time_lap(track, car, settings, use="limit", progress=None)
     except Exception:  # no limit: the tyres' nominal peak (the cell says why)
         return None
@@ -377,7 +395,8 @@ def _limit_lap(track: Track, cfg: RacestackConfig) -> MinTimeLap | None:
 def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
     """Race every method of `matrix` in `cell`; the cell's record (JSON-ready)."""
     t0 = time.perf_counter()
-    track, cfg, pool, ref, note, peak = _setup(cell.track, cell.car, matrix.v_max_mps)
+    track, cfg, pool, ref, note, peak = _setup(cell.track, cell.car, matrix.v_max_mps,
+                                               matrix.ds_m)
     opts = LoopOptions(laps=matrix.laps, estimator=cell.pose, localization=cfg.localization)
     methods: dict[str, Any] = {}
     for name in matrix.methods:
@@ -408,6 +427,21 @@ def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
         "methods": methods,
         "wall_s": round(time.perf_counter() - t0, 2),
     }
+
+
+def cell_order(cells: list[Cell], length_m: Callable[[str], float]) -> list[Cell]:
+    """`cells` in the order the workers take them: the (track, car) groups by their
+    estimated cost (track length x ``POSE_COST`` of their poses), the costliest first, each
+    group's cells together (its track, lines and planners are set up once per worker) and
+    its costliest first; so the workers do not end on one long lidar cell."""
+    def cost(c: Cell) -> float:
+        return length_m(c.track) * POSE_COST.get(c.pose, 1.0)
+
+    groups: dict[tuple[str, str], list[Cell]] = {}
+    for c in cells:
+        groups.setdefault((c.track, c.car), []).append(c)
+    ordered = sorted(groups.values(), key=lambda g: -sum(cost(c) for c in g))
+    return [c for g in ordered for c in sorted(g, key=lambda c: -cost(c))]
 
 
 def _run_cell_task(args: tuple[Cell, Matrix]) -> dict[str, Any]:
@@ -647,10 +681,11 @@ def report(cells: list[dict[str, Any]], matrix: Matrix, timings: dict[str, float
     summary = {m: summarise(cells, m) for m in matrix.methods}
     kinds = wall_by_kind(cells)
     cap = _fmt(matrix.v_max_mps, "g", "the configuration's (4.18 m/s)")
+    grid = "" if matrix.ds_m is None else f", minimum-time grid {matrix.ds_m:g} m"
     lines = [
         f"robustness matrix: {len(matrix.tracks)} tracks x {len(matrix.cars)} cars x "
         f"{len(matrix.poses)} poses, methods {', '.join(matrix.methods)}, {matrix.laps} flying "
-        f"laps, cap {cap}",
+        f"laps, cap {cap}{grid}",
         "cars: " + "; ".join(f"{c} = {CARS[c].summary}" for c in matrix.cars),
         "",
         format_table(cells, matrix.methods),
@@ -747,9 +782,9 @@ def run_matrix(matrix: Matrix, out_dir: Path, jobs: int = 2, resume: bool = Fals
         jsonl.unlink()
     wanted = {c.key for c in matrix.cells()}
     cells = [c for k, c in done.items() if k in wanted]
-    todo = [c for c in matrix.cells() if c.key not in done]
-    # the longest tracks first, so the two workers finish together
-    todo.sort(key=lambda c: -_track(c.track).length_m)
+    # the costliest first, so the two workers finish together
+    todo = cell_order([c for c in matrix.cells() if c.key not in done],
+                      lambda t: _track(t).length_m)
     _say(f"phase 2: {len(todo)} cells ({len(cells)} from {jsonl.name}) in {jobs} workers ...")
     t1 = time.perf_counter()
     with jsonl.open("a", encoding="utf-8") as fh:
@@ -790,6 +825,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--v-max", type=float, default=None,
                     help="every method's cap and the limit's top speed [m/s] (default the "
                     "configuration's 4.18; e.g. 10 on the F1TENTH maps)")
+    ap.add_argument("--min-time-ds", type=float, default=None,
+                    help="grid [m] of the limit's and the raceline's minimum-time laps "
+                    "(default the configuration's, 0.1; e.g. 0.25 on the 260-460 m F1TENTH "
+                    "maps, where a 0.1 m grid takes minutes per lap; cimpcc-line's line keeps "
+                    "0.1)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--out", default=None, help="output folder (default runs/robust-<time>)")
     ap.add_argument("--resume", action="store_true",
@@ -815,10 +855,13 @@ def matrix_from_args(args: argparse.Namespace) -> Matrix:
         raise BenchError("--jobs must be at least 1")
     if args.v_max is not None and not 1.0 < args.v_max <= 20.0:
         raise BenchError("--v-max must be in (1, 20] m/s")
+    ds = getattr(args, "min_time_ds", None)
+    if ds is not None and not 0.02 <= ds <= 1.0:
+        raise BenchError("--min-time-ds must be in [0.02, 1] m")
     for spec in tracks:
         load_track(spec)  # a wrong track fails here, before anything runs
     return Matrix(tuple(tracks), tuple(cars), tuple(poses), tuple(methods), args.laps,
-                  args.v_max)
+                  args.v_max, ds)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,9 @@ services.planner``). What tools may use (``docs/architecture.md``, rule 3) is ``
   planner only reads (``load_min_time_lap``; missing: ``MinTimeArtefactMissingError``,
   one line naming the ``racestack mintime`` command that makes it); which lap a use races
   on (``LapRequest``, ``limit_request``, ``line_request``, ``raceline_request``,
-  ``request_for``, ``laps_of``, ``MIN_TIME_USES``); and its tracker (``Tracker``, ...);
+  ``request_for``, ``laps_of``, ``MIN_TIME_USES``), with the settings of the planner's pose
+  source (``for_pose_source``: truth, ekf, lidar; ``for_stack``: the stack's
+  ``[localization] pose_source``); and its tracker (``Tracker``, ...);
 """
 
 from services.planner.interface import (
@@ -35,6 +37,7 @@ from services.planner.mintime.requests import USES as MIN_TIME_USES
 from services.planner.mintime.requests import (
     LapRequest,
     for_pose_source,
+    for_stack,
     laps_of,
     limit_request,
     line_request,
@@ -85,6 +88,7 @@ __all__ = [
     "discretise",
     "ensure_artefacts",
     "for_pose_source",
+    "for_stack",
     "kinematic_bicycle",
     "laps_of",
     "limit_request",

@@ -44,6 +44,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from services.planner.interface import DriveCommand, PlannerLike, SolveResult
+from services.planner.mintime.requests import for_stack
 from services.planner.mintime.store import MinTimeArtefactMissingError
 from services.planner.opponents import OpponentEstimate, RecordCounts, estimates_from_record
 from services.planner.registry import make_planner
@@ -330,7 +331,9 @@ def run(cfg: RacestackConfig, args: argparse.Namespace, stop: threading.Event) -
     track = load_track(cfg.track.source)
     log.info("building the %s planner on %s", cfg.planner.method, track.name)
     try:
-        planner = make_planner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
+        # the raceline's margin widened for the pose source's error (``for_stack``)
+        settings = for_stack(cfg.planner, cfg.localization.pose_source)
+        planner = make_planner(track, settings, cfg.curvature, vehicle=cfg.vehicle)
     except MinTimeArtefactMissingError as exc:  # made by the tools, never solved here
         raise exc.for_config(args.config, cfg.track.source) from None
     return PlannerShell.host(cfg.bus, stop, lambda bus: PlannerShell(planner, bus))

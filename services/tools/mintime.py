@@ -12,11 +12,12 @@ reference of a model-mismatch run).
 Which lap (``--for``, ``services.planner.mintime.requests``): ``limit`` (default) the car's
 limit, the bench's reference (top speed ``[planner.cimpcc] v_up_mps[0]``, or ``--v-max``,
 ``--ds``, ``--margin``); ``cimpcc-line`` the line that method contours and ``raceline``
-the raceline baseline's line, each exactly as the planner of that configuration reads it
-(settings from ``[planner.cimpcc_line]`` / ``[planner.raceline]``, no overrides). The lap
-is the artefact the planner process reads: solved once per track, car and settings and
-stored in the cache (``services.planner.mintime.store``; ``--cache`` its base folder,
-default ``$RACESTACK_CACHE`` or ``~/.cache/racestack``).
+the raceline baseline's line, each exactly as the stack's planner of that configuration reads
+it (settings from ``[planner.cimpcc_line]`` / ``[planner.raceline]``, no overrides; the
+raceline's margin widened for ``[localization] pose_source``:
+``services.planner.for_stack``). The lap is the artefact the planner process reads: solved
+once per track, car and settings and stored in the cache (``services.planner.mintime.store``;
+``--cache`` its base folder, default ``$RACESTACK_CACHE`` or ``~/.cache/racestack``).
 
 Writes ``DIR/mintime.json`` (lap time, settings, solver figures), ``DIR/raceline.csv`` (the
 driven line in the F1TENTH raceline format, readable with
@@ -43,7 +44,13 @@ import numpy as np
 from services.planner import MIN_TIME_CODE_VERSION as CODE_VERSION
 from services.planner import MIN_TIME_LIMIT as LIMIT
 from services.planner import MIN_TIME_USES as USES
-from services.planner import MinTimeLap, MinTimeSettings, make_min_time_lap, request_for
+from services.planner import (
+    MinTimeLap,
+    MinTimeSettings,
+    for_stack,
+    make_min_time_lap,
+    request_for,
+)
 from shared.config import ConfigError, load_config
 from shared.config.methods import RACELINE
 from shared.config.vehicle import DynamicVehicleParams
@@ -242,7 +249,9 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
                 "solved for [vehicle])"
             )
         car = cfg.simulator.vehicle if simulated else cfg.vehicle
-        vehicle, settings = request_for(use, cfg.planner, car)
+        # the planner's lap as the stack's planner reads it (its pose source's margin)
+        planner = for_stack(cfg.planner, cfg.localization.pose_source)
+        vehicle, settings = request_for(use, planner, car)
         given = [name for name, value in (("--v-max", v_max), ("--ds", ds),
                                           ("--margin", margin)) if value is not None]
         if given and use != LIMIT:

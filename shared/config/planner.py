@@ -161,15 +161,18 @@ class RacelineSettings(Section):
         "generator's TUNING_SEEDS); no effect on the gym car",
     )
     ekf_margin_m: float = Field(
-        0.0, ge=0.0, le=1.0,
+        0.02, ge=0.0, le=1.0,
         description="min_time, the planner on the EKF's poses (the bench's --estimator ekf, "
-        "the stack's external pose): this much more margin [m], the tube of the "
-        "localisation error (``mintime.requests.for_pose_source``)",
+        "the stack's pose_source 'external'): this much more margin [m], the tube of the "
+        "localisation's lateral error (its 95th percentile, 1.85-1.90 cm in the bench on "
+        "gen:1002 and map416, RMS 0.9-1.0 cm; ``mintime.requests.for_pose_source``)",
     )
     lidar_margin_m: float = Field(
-        0.0, ge=0.0, le=1.0,
-        description="min_time, the planner on the lidar particle filter's poses: this much "
-        "more margin [m] (``mintime.requests.for_pose_source``)",
+        0.01, ge=0.0, le=1.0,
+        description="min_time, the planner on the lidar particle filter's poses (the bench's "
+        "--estimator lidar, the stack's pose_source 'lidar'): this much more margin [m] "
+        "(the lateral error's 95th percentile, 0.7 cm in the bench on gen:1002: the walls "
+        "pin the car across; its 2.4 cm position RMS is mostly along the track)",
     )
     min_time_slip_fraction: float = Field(
         0.8, ge=0.1, le=1.0,
@@ -200,6 +203,12 @@ class RacelineSettings(Section):
     )
     k_lateral_radpm: float = Field(
         0.5, ge=0.0, le=10.0, description="tracker: steering per m of look-ahead error [rad/m]"
+    )
+    k_lateral_speed_mps: float | None = Field(
+        None, gt=0.0, le=20.0,
+        description="tracker: above this planned speed [m/s] k_lateral falls as (v_k / "
+        "v)^2 (the look-ahead feedback's heading gain grows with v^2; at 9-10 m/s the 20 Hz "
+        "loop weaved the car wall to wall); None: k_lateral at every speed",
     )
     lookahead_base_m: float = Field(0.0, ge=0.0, le=10.0, description="tracker: l_0 [m]")
     lookahead_time_s: float = Field(

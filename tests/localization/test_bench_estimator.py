@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from services.simulator import Command, centreline_pose, rear_axle
 from services.tools.bench import build_parser
 from services.tools.bench.closed_loop import LoopOptions, SimulatorPlant
@@ -46,7 +48,6 @@ def test_the_start_pose_is_the_rear_axle_of_the_bench_start() -> None:
     assert e.valid and math.hypot(e.x_m - start[0], e.y_m - start[1]) < 1e-9
 
 
-
 def test_the_lidar_grid_is_made_once_per_track_in_a_process(monkeypatch) -> None:
     from services.tools.bench import estimation
 
@@ -62,3 +63,18 @@ def test_the_lidar_grid_is_made_once_per_track_in_a_process(monkeypatch) -> None
     estimation.track_grid(load_track("gen:2"))  # a bounded cache: the oldest goes
     assert len(estimation._GRIDS) == 2
     assert estimation.track_grid(a) is not grid and made[-1] == "paperlike"
+
+
+def test_the_lateral_error_is_the_error_across_the_car() -> None:
+    track = load_track("paperlike")
+    sim = SimulatorSettings()
+    est = InLoopEstimator("ekf", track, sim, LocalizationSettings(), (0.0, 0.0, 0.0))
+    e = est.filter.estimate(0.0)
+    # the car heads along +y: an estimate 3 cm behind it and 1 cm to its right
+    truth = (e.x_m + 0.01, e.y_m + 0.03, math.pi / 2)
+    est.pose(0.0, truth)
+    err = est.errors()
+    assert err["rms_position_m"] == pytest.approx(math.hypot(0.01, 0.03))
+    assert err["rms_lateral_m"] == pytest.approx(0.01)
+    assert err["p95_lateral_m"] == pytest.approx(0.01)
+    assert err["max_lateral_m"] == pytest.approx(0.01)

@@ -232,3 +232,33 @@ def test_with_a_slow_servo_the_feedback_leads_the_error_by_its_lag() -> None:
     lagged.reset()
     again = lagged.command(*right, yaw, s_hint_m=s)  # forgotten: no rate yet
     assert again.steering_rad - first.steering_rad == pytest.approx(k_e * e, rel=0.05)
+
+
+def test_joining_the_line_slowly_steers_for_the_speed_it_joins_at() -> None:
+    """Held at JOIN_SPEED_MPS below its line's speed, the raceline steers the line at that
+    speed (``_slow_steering``), not the line's own steering for its own speed: with that the
+    identified car ran off the inside of map416's first bends in its out lap."""
+    track = load_track("paperlike")
+    planner = RacelinePlanner(track, PlannerSettings(raceline=RacelineSettings(
+        line="min_curvature")), vehicle=CAR)
+    ref = planner.raceline.reference
+    s = float(ref.s_m[int(np.argmax(ref.v_mps))])  # the fastest point: far above the join
+    assert float(ref.at("v", s)) > JOIN_SPEED_MPS + 0.5
+    line = ref.line
+    x, y = line.point_at(s)
+    h = float(line.heading_at(s))
+    off = 0.2  # the rear axle 0.2 m left of the line: joining
+    pose = (float(x) - off * math.sin(h) - CAR.lr_m * math.cos(h),
+            float(y) + off * math.cos(h) - CAR.lr_m * math.sin(h), h)
+    asked = []
+
+    def slow(cx, cy, yaw, s_m, speed_mps, line_rad):
+        asked.append((speed_mps, line_rad))
+        return 0.0123
+
+    planner._slow_steering = slow
+    planner._s_line = s
+    res = planner.step(*pose)
+    assert planner._joining and res.command.speed_mps <= JOIN_SPEED_MPS
+    assert asked == [(res.command.speed_mps, pytest.approx(asked[0][1]))]
+    assert res.command.steering_rad == pytest.approx(0.0123)

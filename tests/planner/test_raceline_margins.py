@@ -101,3 +101,18 @@ def test_the_tracker_at_full_scale_is_the_plan_itself() -> None:
     assert a == b
     c = tracker.command(x, y, yaw, None, speed_scale=0.5)
     assert c.speed_mps < a.speed_mps
+
+
+def test_the_stack_plans_with_the_margin_of_its_pose_source() -> None:
+    from services.planner import for_stack
+    from services.planner.mintime.requests import STACK_POSE_SOURCES, stack_pose_source
+
+    settings = PlannerSettings(raceline=RacelineSettings(ekf_margin_m=0.01, lidar_margin_m=0.03))
+    # an external pose reaches the planner through the bridge's EKF, the lidar's through
+    # the particle filter into the EKF: the bench's ekf and lidar
+    assert stack_pose_source("external") == "ekf" and stack_pose_source("lidar") == "lidar"
+    assert set(STACK_POSE_SOURCES.values()) <= set(POSE_MARGINS)
+    assert for_stack(settings, "external") == for_pose_source(settings, "ekf")
+    assert for_stack(settings, "lidar").raceline.min_time_margin_m == pytest.approx(0.05)
+    with pytest.raises(ValueError, match="pose_source"):
+        for_stack(settings, "gps")

@@ -216,3 +216,17 @@ def test_the_car_reaches_the_planned_acceleration_through_its_speed_loop() -> No
     assert np.median(a_car[ramp]) == pytest.approx(3.0, rel=0.1)
     assert np.median(a_car[brake]) == pytest.approx(-4.0, rel=0.1)
     assert np.abs(vc - out["v_plan"][lap2]).max() < 0.1
+
+
+def test_the_lateral_gain_falls_with_the_square_of_the_speed_above_its_speed() -> None:
+    """``k_lateral_speed_mps``: k_e itself up to it (the paper's 4.18 m/s cap races exactly
+    as before), ``k_e (v_k / v)^2`` above (the heading gain ``k_e l_d v / L`` would grow
+    with v^2); None: k_e at every speed."""
+    from shared.config.planner import RacelineSettings
+
+    g = TrackerGains(k_lateral_radpm=0.5, k_lateral_speed_mps=5.0)
+    assert g.k_lateral_at(0.0) == 0.5 and g.k_lateral_at(5.0) == 0.5
+    assert g.k_lateral_at(10.0) == pytest.approx(0.125)
+    assert TrackerGains(k_lateral_radpm=0.5).k_lateral_at(10.0) == 0.5
+    o = RacelineSettings(k_lateral_speed_mps=6.0)
+    assert tracker_gains(o).k_lateral_at(12.0) == pytest.approx(0.25 * o.k_lateral_radpm)

@@ -97,6 +97,33 @@ def min_time_settings(
 
 #: The pose sources of ``for_pose_source`` and their margin keys of ``[planner.raceline]``.
 POSE_MARGINS = {"truth": None, "ekf": "ekf_margin_m", "lidar": "lidar_margin_m"}
+#: The stack's ``[localization] pose_source`` -> the pose source of ``for_pose_source``: an
+#: ``external`` pose (the simulator's pose sensor, a localiser) reaches the planner through the
+#: bridge's EKF (the bench's ``--estimator ekf``), ``lidar`` through the particle filter into
+#: the EKF (``--estimator lidar``). The stack never plans on the true pose.
+STACK_POSE_SOURCES = {"external": "ekf", "lidar": "lidar"}
+
+
+def stack_pose_source(pose_source: str) -> str:
+    """The pose source (``POSE_MARGINS``) of the stack's ``[localization] pose_source``
+    (``STACK_POSE_SOURCES``).
+
+    Raises:
+        ValueError: an unknown ``pose_source``.
+    """
+    if pose_source not in STACK_POSE_SOURCES:
+        raise ValueError(f"unknown [localization] pose_source {pose_source!r}; choose one of "
+                         f"{', '.join(STACK_POSE_SOURCES)}")
+    return STACK_POSE_SOURCES[pose_source]
+
+
+def for_stack(settings: PlannerSettings, pose_source: str) -> PlannerSettings:
+    """`settings` for the stack's planner on ``[localization] pose_source`` `pose_source`
+    (``"external"``, ``"lidar"``): ``for_pose_source`` with ``stack_pose_source``. The planner
+    service, ``racestack up`` (the laps it makes before starting it) and ``racestack
+    mintime --for raceline`` (the command a missing lap names) all build through here, so
+    they key the same lap."""
+    return for_pose_source(settings, stack_pose_source(pose_source))
 
 
 def for_pose_source(settings: PlannerSettings, pose: str) -> PlannerSettings:
@@ -153,12 +180,15 @@ def raceline_request(
 
 
 def limit_request(
-    settings: PlannerSettings, car: DynamicVehicleParams | None = None
+    settings: PlannerSettings, car: DynamicVehicleParams | None = None,
+    ds_m: float | None = None,
 ) -> LapRequest:
     """The car's limit (module docstring): `car` (None: the F1TENTH gym's) as it is, top
-    speed ``settings.cimpcc.v_up_mps[0]`` [m/s], the default grid and margin."""
+    speed ``settings.cimpcc.v_up_mps[0]`` [m/s], the default margin and grid (or `ds_m`
+    [m]: the robustness benchmark's ``--min-time-ds`` on the long F1TENTH maps)."""
+    grid = {} if ds_m is None else {"ds_m": ds_m}
     return LapRequest(
-        car or F1TENTH_GYM, MinTimeSettings(v_max_mps=settings.cimpcc.v_up_mps[0])
+        car or F1TENTH_GYM, MinTimeSettings(v_max_mps=settings.cimpcc.v_up_mps[0], **grid)
     )
 
 

@@ -98,8 +98,10 @@ SERVO_ALLOWANCE_S = 0.028
 JOIN_SPEED_MPS = 2.0
 JOIN_TOLERANCE_M = 0.05
 #: Speed scales of the steering feed-forward tables used below the line's speed (a car
-#: held behind an opponent, ``RacelinePlanner._slow_steering``).
+#: held behind an opponent, joining the line, ramping up after a recovery:
+#: ``RacelinePlanner._slow_steering``), and how far below the line's speed [m/s] they act.
 FEED_FORWARD_SCALES = (0.4, 0.55, 0.7, 0.85, 1.0)
+SLOW_SPEED_MPS = 0.05
 #: How far ahead the offset from the line is kept inside the track [s of the line's speed].
 OFFSET_ROOM_S = 1.0
 #: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
@@ -404,6 +406,7 @@ def tracker_gains(settings: RacelineSettings) -> TrackerGains:
         lookahead_min_m=settings.lookahead_min_m,
         lookahead_max_m=settings.lookahead_max_m,
         k_outward_per_s2=settings.k_outward_per_s2,
+        k_lateral_speed_mps=settings.k_lateral_speed_mps,
     )
 
 
@@ -641,10 +644,6 @@ class RacelinePlanner:
         steering = tc.steering_rad
         if plan is not FREE:
             speed = min(speed * plan.speed_factor, plan.speed_cap_mps)
-            if speed < tc.speed_mps - 0.05:
-                steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m, speed, steering)
-        if self._offset != 0.0:  # the offset path bends more (less) than the line
-            steering += self._offset_steering(tc.s_m)
         speed = min(max(speed, self._speed_lim[0]), self._speed_lim[1])
         if self._joining:  # peaky tyres reach the line slowly, then ramp from there
             if abs(tc.e_m) > JOIN_TOLERANCE_M:
@@ -654,6 +653,14 @@ class RacelinePlanner:
                 self._handover.start(self._speed_cmd)
         if self._handover.active:
             speed = self._handover.cap(speed, self.settings.dt_s)
+        if speed < min(tc.speed_mps, self._speed_lim[1]) - SLOW_SPEED_MPS:
+            # held below the line's speed (behind a car, joining the line, the hand-over's
+            # ramp): the steering of the line at that speed; the line's own, for its
+            # speed, turned the identified car joining at 2 m/s off the inside of map416's
+            # first bends (2 off-track events in every out lap)
+            steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m, speed, steering)
+        if self._offset != 0.0:  # the offset path bends more (less) than the line
+            steering += self._offset_steering(tc.s_m)
         self._speed_cmd = speed
         self._drove = plan.mode != "follow"  # waiting behind a car is not a stall
         delta = min(max(steering, self._delta_lim[0]), self._delta_lim[1])

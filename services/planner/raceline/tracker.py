@@ -271,6 +271,11 @@ class TrackerGains:
         lookahead_min_m, lookahead_max_m: bounds of ``l_d`` [m].
         k_outward_per_s2: ``k_out``, acceleration cut per metre of drift towards the
             outside of the bend [1/s^2].
+        k_lateral_speed_mps: above this planned speed [m/s] ``k_e`` falls as ``(v_k /
+            v_p)^2`` (``k_lateral_at``): the look-ahead feedback's heading gain ``k_e l_d
+            v / L`` grows with ``v^2`` (``l_d`` with ``v``), and at 9-10 m/s it is past what
+            the 20 Hz loop with its delays holds (the car weaved wall to wall on the F1TENTH
+            maps' straights); None: ``k_e`` at every speed. At and below it, ``k_e`` itself.
     """
 
     k_lateral_radpm: float = 0.5
@@ -279,6 +284,14 @@ class TrackerGains:
     lookahead_min_m: float = 0.5
     lookahead_max_m: float = 4.0
     k_outward_per_s2: float = 25.0
+    k_lateral_speed_mps: float | None = None
+
+    def k_lateral_at(self, v_mps: float) -> float:
+        """``k_e`` [rad/m] at planned speed `v_mps` [m/s] (``k_lateral_speed_mps``)."""
+        v_k = self.k_lateral_speed_mps
+        if v_k is None or v_mps <= v_k:
+            return self.k_lateral_radpm
+        return self.k_lateral_radpm * (v_k / v_mps) ** 2
 
     def lookahead_m(self, v_mps: float) -> float:
         """``l_d`` [m] at speed `v_mps` [m/s]."""
@@ -406,7 +419,7 @@ class Tracker:
         t0 = p.at("t", s)
         w_steer, w_speed = c * self._w_steer, c * self._w_speed  # in the plan's time
         s_steer = p.s_at_time(t0 + w_steer)
-        steering = float(np.mean(p.at("delta", s_steer))) + g.k_lateral_radpm * e_la
+        steering = float(np.mean(p.at("delta", s_steer))) + g.k_lateral_at(v_p) * e_la
         if tau > 0.0:  # the servo's lag inverted: its target leads by tau times the rate
             h = LAG_RATE_STEP_S
             ahead = p.at("delta", p.s_at_time(t0 + w_steer + c * h))

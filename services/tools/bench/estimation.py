@@ -9,7 +9,8 @@ filter code, in the same process (``racestack bench --estimator truth|ekf|lidar`
 
 Both start from the car's known start pose (the bench's start, ``init = "start"``). Every
 planner tick compares the estimate with the truth: ``errors()`` gives the RMS position [m]
-and yaw [rad] errors, the largest position error and the filter's counts.
+and yaw [rad] errors, the largest position error, the lateral error (across the car: the
+tube the planner's pose-source margin covers) and the filter's counts.
 """
 
 from __future__ import annotations
@@ -81,6 +82,7 @@ class InLoopEstimator:
         )
         self.filter.pose(t0_s, *start, None, t0_s)  # the known start pose
         self._err_xy: list[float] = []
+        self._err_lat: list[float] = []
         self._err_yaw: list[float] = []
         self.invalid_ticks = 0
 
@@ -119,7 +121,10 @@ class InLoopEstimator:
         against it."""
         e = self.filter.estimate(now_s)
         self.invalid_ticks += not e.valid
-        self._err_xy.append(math.hypot(e.x_m - truth[0], e.y_m - truth[1]))
+        dx, dy = e.x_m - truth[0], e.y_m - truth[1]
+        self._err_xy.append(math.hypot(dx, dy))
+        # across the car (normal to its true heading): what pushes the car off its line
+        self._err_lat.append(-math.sin(truth[2]) * dx + math.cos(truth[2]) * dy)
         self._err_yaw.append(wrap_angle(e.yaw_rad - truth[2]))
         return e.x_m, e.y_m, e.yaw_rad
 
@@ -131,15 +136,22 @@ class InLoopEstimator:
         return out
 
     def errors(self) -> dict:
-        """RMS position [m] and yaw [deg] error, max position error [m], invalid ticks and
-        the counts (results.json's ``localisation``)."""
+        """RMS position [m] and yaw [deg] error, max position error [m], the lateral error
+        (across the car's true heading: RMS, 95th / 99th percentile and max of its size [m],
+        what ``[planner.raceline] ekf_margin_m`` / ``lidar_margin_m`` cover), invalid ticks
+        and the counts (results.json's ``localisation``)."""
         xy, yaw = np.asarray(self._err_xy), np.asarray(self._err_yaw)
+        lat = np.abs(np.asarray(self._err_lat))
         n = xy.size
         return {
             "estimator": self.kind,
             "ticks": int(n),
             "rms_position_m": float(np.sqrt(np.mean(xy**2))) if n else None,
             "max_position_m": float(xy.max()) if n else None,
+            "rms_lateral_m": float(np.sqrt(np.mean(lat**2))) if n else None,
+            "p95_lateral_m": float(np.percentile(lat, 95)) if n else None,
+            "p99_lateral_m": float(np.percentile(lat, 99)) if n else None,
+            "max_lateral_m": float(lat.max()) if n else None,
             "rms_yaw_deg": float(np.degrees(np.sqrt(np.mean(yaw**2)))) if n else None,
             "invalid_ticks": self.invalid_ticks,
             "counts": dict(self.counts()),

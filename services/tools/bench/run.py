@@ -25,6 +25,11 @@ the minimum-time lap of its simulated car on the track (``services.planner.minti
 speed the planners' ``[planner.cimpcc] v_up_mps[0]``) and reports every method's mean lap
 over it (``ratio_to_min_time`` in results.json, the last row of the table): the limit of
 the car whose laps it judges.
+
+Pose: ``--estimator`` (truth, ekf, lidar) is the pose the planners see; they are built with
+that pose source's settings (``services.planner.for_pose_source``: the raceline's margin
+widened by ``[planner.raceline] ekf_margin_m`` / ``lidar_margin_m``, the tube of that
+localisation's lateral error), as the stack's planner on that ``[localization] pose_source``.
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ from services.planner import (
     PlannerPool,
     RacelinePlanner,
     ensure_artefacts,
+    for_pose_source,
     limit_request,
     make_min_time_lap,
 )
@@ -306,15 +312,17 @@ def profile_lap_time_s(planner: PlannerLike) -> float:
 
 
 def min_time_reference(
-    track: Track, cfg: RacestackConfig, lines: list[ReferenceLine] | None = None
+    track: Track, cfg: RacestackConfig, lines: list[ReferenceLine] | None = None,
+    ds_m: float | None = None,
 ) -> dict | None:
     """The ``reference`` of results.json: the minimum-time lap of the simulated car on
-    `track` at the planners' top speed (cached per track and car), or None (with a line
-    on stderr) when the track allows none. Its line for the figures is appended to
-    `lines` (when given)."""
+    `track` at the planners' top speed (cached per track and car; grid `ds_m` [m], None:
+    the default), or None (with a line on stderr) when the track allows none. Its line for
+    the figures is appended to `lines` (when given)."""
     try:
         with Heartbeat("minimum-time reference lap") as beat:
-            lap = make_min_time_lap(track, *limit_request(cfg.planner, cfg.simulator.vehicle),
+            lap = make_min_time_lap(track, *limit_request(cfg.planner, cfg.simulator.vehicle,
+                                                          ds_m),
                                     use=MIN_TIME_LIMIT, progress=_stderr)
     except MinTimeError as exc:
         print(f"no minimum-time reference: {exc}", file=sys.stderr)
@@ -366,9 +374,12 @@ def run_bench(
     if reference:
         ref_doc = min_time_reference(track, cfg, ref_lines)
         timings["min-time reference"] = time.perf_counter() - t_start
+    # the planners' settings for the pose they see: the raceline's margin widened by the
+    # pose source's tube (``for_pose_source``: [planner.raceline] ekf_margin_m, lidar_margin_m)
+    settings = for_pose_source(cfg.planner, opts.estimator)
     for name in methods:  # the minimum-time laps the planners read (made once, cached)
         with Heartbeat(f"the minimum-time lap {name} races on"):
-            ensure_artefacts(name, track, cfg.planner, cfg.vehicle, progress=_stderr)
+            ensure_artefacts(name, track, settings, cfg.vehicle, progress=_stderr)
     pool = PlannerPool(track, cfg.vehicle)  # the planners' car; the simulator races its own
     # built first: a track that allows no line is an error before anything races
     planners = {}
@@ -379,7 +390,7 @@ def run_bench(
             spec.kind == "mpc") else ""
         _stderr(f"building the {what} for {name} on {track.name}{how} ...")
         with Heartbeat(f"building the {what} for {name}"):
-            planners[name] = pool.planner(cfg.planner, name, cfg.curvature)
+            planners[name] = pool.planner(settings, name, cfg.curvature)
     profile = track_profile(track, cfg.curvature)
     runs: list[MethodRun] = []
     for name in methods:
@@ -650,7 +661,10 @@ def main(argv: list[str] | None = None, args: argparse.Namespace | None = None) 
             print(
                 f"localisation {name} ({loc['estimator']}): position RMS "
                 f"{100 * (loc['rms_position_m'] or 0):.2f} cm, max "
-                f"{100 * (loc['max_position_m'] or 0):.2f} cm, yaw RMS "
+                f"{100 * (loc['max_position_m'] or 0):.2f} cm, lateral RMS / p95 / p99 "
+                f"{100 * (loc.get('rms_lateral_m') or 0):.2f} / "
+                f"{100 * (loc.get('p95_lateral_m') or 0):.2f} / "
+                f"{100 * (loc.get('p99_lateral_m') or 0):.2f} cm, yaw RMS "
                 f"{loc['rms_yaw_deg'] or 0:.2f} deg, invalid ticks {loc['invalid_ticks']}"
             )
     print(f"results: {out / 'results.json'}" + ("" if args.no_figures else f", figures in {out}"))

@@ -52,7 +52,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from services.planner import MinTimeError, ensure_artefacts
+from services.planner import MinTimeError, ensure_artefacts, for_stack
 from services.tools.launcher.cpu import CpuMeter, format_cpu
 from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus, BusOpenError
@@ -250,8 +250,9 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
         try:
             methods = {c.method or cfg.planner.method for c in cfg.cars} or {
                 cfg.planner.method}
+            planner = for_stack(cfg.planner, cfg.localization.pose_source)
             for method in sorted(methods):
-                ensure_artefacts(method, track, cfg.planner, cfg.vehicle, progress=_say)
+                ensure_artefacts(method, track, planner, cfg.vehicle, progress=_say)
         except MinTimeError as exc:
             remove_empty_dirs(created)
             return _cannot_start(str(exc))

@@ -202,6 +202,35 @@ def test_the_cap_follows_v_max_for_every_method_and_the_limit() -> None:
     assert plain.planner.cimpcc.v_up_mps[0] == pytest.approx(4.18)
 
 
+def test_a_coarser_grid_puts_the_limit_and_the_raceline_s_line_on_it() -> None:
+    cfg = rb.config_for("default", 10.0, 0.25)
+    assert cfg.planner.raceline.ds_m == pytest.approx(0.25)
+    assert limit_request(cfg.planner, cfg.simulator.vehicle, 0.25).settings.ds_m == 0.25
+    matrix = rb.Matrix(("paperlike",), ("default",), ("truth",), (RACELINE,), 1, 10.0, 0.25)
+    tasks = rb.lap_tasks(matrix)
+    assert sorted(t.use for t in tasks) == sorted(["limit", RACELINE])
+    assert all(t.settings.ds_m == pytest.approx(0.25) for t in tasks)
+    assert all(t.settings.v_max_mps == pytest.approx(10.0) for t in tasks)
+    args = rb.build_parser().parse_args(["--tracks", "paperlike", "--min-time-ds", "0.25"])
+    assert rb.matrix_from_args(args).ds_m == 0.25
+    assert rb.config_for("default").planner.raceline.ds_m == pytest.approx(0.1)
+    with pytest.raises(rb.BenchError, match="min-time-ds"):
+        rb.matrix_from_args(rb.build_parser().parse_args(["--tracks", "paperlike",
+                                                          "--min-time-ds", "5"]))
+
+
+def test_the_costliest_cells_go_first_each_track_and_car_together() -> None:
+    cells = rb.Matrix(("a", "b"), ("default", "linear"), ("truth", "ekf", "lidar"),
+                      (RACELINE,)).cells()
+    length = {"a": 100.0, "b": 30.0}
+    order = rb.cell_order(cells, length.__getitem__)
+    assert sorted(order, key=lambda c: c.key) == sorted(cells, key=lambda c: c.key)
+    assert [(c.track, c.pose) for c in order[:3]] == [("a", "lidar"), ("a", "ekf"),
+                                                      ("a", "truth")]
+    assert len({(c.track, c.car) for c in order[:3]}) == 1  # one group at a time
+    assert [c.track for c in order] == ["a"] * 6 + ["b"] * 6
+
+
 def test_the_cars_of_the_matrix() -> None:
     assert rb.config_for("linear").vehicle.tyre_model == "linear"
     assert not rb.config_for("linear").simulates_another_car
@@ -221,9 +250,14 @@ def test_the_matrix_and_its_laps(tmp_path: Path) -> None:
     matrix = rb.Matrix(("paperlike",), ("default", "identified-on-default"), ("truth", "ekf"),
                        (CIMPCC_LINE, RACELINE))
     assert len(matrix.cells()) == 4
-    # the limits of both simulated cars, the planners' (default) lines once
-    uses = sorted(t.use for t in rb.lap_tasks(matrix))
-    assert uses == sorted([CIMPCC_LINE, RACELINE, "limit", "limit"])
+    # the limits of both simulated cars, the planners' (default) lines once, the raceline's
+    # for each pose source's margin (ekf_margin_m widens it)
+    tasks = rb.lap_tasks(matrix)
+    uses = sorted(t.use for t in tasks)
+    assert uses == sorted([CIMPCC_LINE, RACELINE, RACELINE, "limit", "limit"])
+    margins = sorted(t.settings.margin_m for t in tasks if t.use == RACELINE)
+    o = rb.config_for("default").planner.raceline
+    assert margins == pytest.approx([o.min_time_margin_m, o.min_time_margin_m + o.ekf_margin_m])
 
 
 @pytest.mark.slow

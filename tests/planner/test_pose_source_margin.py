@@ -1,0 +1,95 @@
+"""Every planner that sees estimated poses plans the raceline's line with the pose source's
+margin (``services.planner.for_pose_source`` / ``for_stack``): the bench on
+``--estimator ekf|lidar``, the planner service and ``racestack mintime --for raceline`` on
+``[localization] pose_source``; and all of them key the same lap."""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from pathlib import Path
+
+import pytest
+
+from services.planner import for_pose_source, raceline_request
+from shared.config import config_from_dict
+from shared.config.methods import RACELINE
+
+#: Margins that no default has, so the test sees them arrive.
+MARGINS = {"planner": {"raceline": {"ekf_margin_m": 0.011, "lidar_margin_m": 0.033}}}
+
+
+class StoppedError(Exception):
+    """Raised by the fakes once they have seen what they were given."""
+
+
+def _margin(pose: str) -> float:
+    cfg = config_from_dict(MARGINS)
+    return for_pose_source(cfg.planner, pose).raceline.min_time_margin_m
+
+
+@pytest.mark.parametrize("estimator", ["truth", "ekf", "lidar"])
+def test_the_bench_builds_its_planners_for_the_pose_they_see(
+    estimator: str, monkeypatch, tmp_path: Path
+) -> None:
+    from services.tools.bench import run
+    from services.tools.bench.closed_loop import LoopOptions
+
+    seen = []
+
+    def fake_ensure(method, track, settings, vehicle=None, **_kwargs):
+        seen.append(settings.raceline.min_time_margin_m)
+        raise StoppedError
+
+    monkeypatch.setattr(run, "ensure_artefacts", fake_ensure)
+    cfg = config_from_dict(MARGINS)
+    with pytest.raises(StoppedError):
+        run.run_bench(cfg, "paperlike", [RACELINE], 1, tmp_path,
+                      LoopOptions(laps=1, estimator=estimator), [], 1, figures=False,
+                      reference=False)
+    base = cfg.planner.raceline.min_time_margin_m
+    want = {"truth": base, "ekf": base + 0.011, "lidar": base + 0.033}[estimator]
+    assert seen == [pytest.approx(want)] and _margin(estimator) == pytest.approx(want)
+
+
+@pytest.mark.parametrize(("pose_source", "pose"), [("external", "ekf"), ("lidar", "lidar")])
+def test_the_planner_service_plans_for_its_pose_source(pose_source: str, pose: str,
+                                                       monkeypatch) -> None:
+    import services.planner.service as service
+
+    seen = []
+
+    def fake_make_planner(track, settings, curvature, vehicle=None, **_kwargs):
+        seen.append(settings.raceline.min_time_margin_m)
+        raise StoppedError
+
+    monkeypatch.setattr(service, "make_planner", fake_make_planner)
+    cfg = config_from_dict({**MARGINS, "localization": {"pose_source": pose_source}})
+    with pytest.raises(StoppedError):
+        service.run(cfg, argparse.Namespace(config=None), threading.Event())
+    assert seen == [pytest.approx(_margin(pose))]
+
+
+def test_racestack_mintime_makes_the_lap_the_stack_s_planner_reads(
+    tmp_path: Path, monkeypatch
+) -> None:
+    import services.tools.mintime as mintime
+
+    seen = []
+
+    def fake_make(track, vehicle, settings, *_args, **_kwargs):
+        seen.append(settings)
+        raise StoppedError
+
+    monkeypatch.setattr(mintime, "make_min_time_lap", fake_make)
+    config = tmp_path / "lidar.toml"
+    config.write_text('[localization]\npose_source = "lidar"\n[planner.raceline]\n'
+                      'lidar_margin_m = 0.033\n', encoding="utf-8")
+    with pytest.raises(StoppedError):
+        mintime.main(["--for", RACELINE, "--config", str(config), "--track", "paperlike",
+                      "--out", str(tmp_path / "out")])
+    cfg = config_from_dict({"localization": {"pose_source": "lidar"},
+                            "planner": {"raceline": {"lidar_margin_m": 0.033}}})
+    want = raceline_request(for_pose_source(cfg.planner, "lidar"), cfg.vehicle).settings
+    assert seen == [want]
+    assert want.margin_m == pytest.approx(cfg.planner.raceline.min_time_margin_m + 0.033)
