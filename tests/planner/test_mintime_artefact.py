@@ -26,6 +26,7 @@ from services.planner import (
     MinTimeArtefactMissingError,
     MinTimeError,
     ensure_artefacts,
+    for_stack,
     laps_of,
     limit_request,
     line_request,
@@ -191,7 +192,10 @@ def test_racestack_up_makes_the_lap_before_it_starts_the_planner(
     cfg = load_config(str(line_config(tmp_path)))
     opts = up.UpOptions(config_path=None, run_dir=tmp_path / "run")
     assert up.run_up(cfg, opts) == 2
-    assert made == [(LINE, TRACK, cfg.planner, cfg.vehicle)]
+    # the planner's settings as the stack's planner builds them (``for_stack``: the raceline's
+    # margin widened for the configured pose source)
+    stack = for_stack(cfg.planner, cfg.localization.pose_source)
+    assert made == [(LINE, TRACK, stack, cfg.vehicle)]
     assert "racestack up: solving ..." in capsys.readouterr().out
     # a lap that cannot exist: one line, nothing started
 
@@ -352,7 +356,8 @@ def test_the_cli_makes_the_same_laps(tmp_path: Path, monkeypatch, capsys) -> Non
     for use, request in ((LIMIT, limit_request), (LINE, line_request),
                          (RACELINE, raceline_request)):
         track, car, settings = _cli_request(monkeypatch, [*base, "--for", use])
-        want = request(cfg.planner, cfg.vehicle)
+        # the lap the stack's planner reads (``for_stack``: the pose source's margin)
+        want = request(for_stack(cfg.planner, cfg.localization.pose_source), cfg.vehicle)
         assert store.cache_key(track, car, settings) == store.cache_key(track, *want), use
     # no --for: the limit, as before (the configured top speed, default grid and margin)
     track, car, settings = _cli_request(monkeypatch, base)
