@@ -46,10 +46,40 @@ tyre parameters (``TYRE_PARAMETERS`` per model):
 Geometry and mass (``m, I_z, l_f, l_r, h``) come from the base car (weighed and measured,
 not fitted).
 
-Uncertainty: one standard deviation from the curvature of the sum of squares at the
-optimum (Gauss-Newton ``s^2 (J^T J)^-1``, or a parabola through the profile of a grid
-parameter), scaled by the residuals' own variance and by ``n / n_eff`` for their
-correlation (lag-1 autocorrelation ``rho``: ``n_eff = n (1 - rho) / (1 + rho)``). A
+Uncertainty (``Estimate.sigma``, one standard deviation) has two parts in quadrature:
+
+- Statistical: a delete-one-block jackknife. The grid is cut into ``JACKKNIFE_BLOCKS``
+  contiguous stretches of equal length (about a lap each in a 2-minute race); each
+  estimate is made again without each block in turn and ``sigma^2 = (G - 1) / G sum_g
+  (x_g - mean)^2``. The residuals are correlated over seconds (the model's own error,
+  lap after lap), which the curvature of the sum of squares does not see even inflated for
+  their lag-1 correlation; a block's worth of data left out shows what another recording
+  would. No refit: the steering's servo simulation sums its squares per block for every
+  candidate of its grids at once (each replicate the vertex of its own profile); the speed
+  loop keeps its sums per block for every (delay, a_max) and its gains are a linear least
+  squares (refitted without each block); the tyres take one Gauss-Newton step from the
+  optimum on the other blocks' rows of the Jacobian the fit already has (linearised:
+  a block is a tenth of the data).
+- Systematic, what no resampling of this recording shows (``Estimate.sigma_systematic``):
+  the grid and the timing. A delay is fitted on the grid's steps and its signals are
+  stamped only to within their sample period (a sample may stand for any instant of it:
+  the simulator's IMU gives the mean acceleration over its step, stamped at the end; a
+  real one filters), so its floor is ``sqrt(dt^2 + sum T_s^2) / sqrt 12``
+  (``timing_sigma``: the grid's step, the period of each signal in it). A parameter that
+  trades off against a delay (the servo's time constant and rate limit, the speed loop's
+  gains and acceleration limit) gets ``|d x / d delay|`` (its optimum at the neighbouring
+  delays) times that floor. The tyres: each signal (yaw rate, lateral acceleration,
+  steering angle, speed, acceleration demand) shifted by one grid step, the fit's linear
+  response ``-(J^T J)^-1 J^T dr`` scaled to the signal's ``T / sqrt 12``, the signals'
+  responses independent (one simulation each for the inputs).
+
+``Estimate.sigma_curvature`` keeps the former, curvature-only sigma (Gauss-Newton
+``s^2 (J^T J)^-1`` or a parabola through a grid parameter's profile, scaled by ``n /
+n_eff`` for the lag-1 correlation) for comparison; the Pacejka B-C correlation below is
+that curvature's (the shape of the sum of squares, not a spread of ten replicates).
+A delay is identifiable when its sigma is at most ``DELAY_SIGMA_MAX_S`` (a relative sigma
+means little for a delay near 0); a rate limit only when the fit without it (the fastest
+rate tried) is worse by ``LIMIT_SIGNIFICANCE`` jackknife sigmas of that difference. A
 parameter whose relative uncertainty exceeds ``IDENTIFIABLE_REL_SIGMA``, whose grid optimum
 sits at the grid's edge, or whose effect the run never shows (a rate limit never reached,
 friction never used up, an acceleration limit never hit) is reported as not identifiable
