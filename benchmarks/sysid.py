@@ -40,6 +40,7 @@ import argparse
 import math
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -243,11 +244,22 @@ def tolerance(name: str) -> tuple[float, bool]:
     return (0.05 if name.endswith("_D") else 0.10), False
 
 
+def _z(err: float, sigma: float) -> float:
+    return abs(err) / sigma if sigma > 0 and math.isfinite(sigma) else math.nan
+
+
 def table(name: str, result: SysidResult, true: dict[str, float]) -> tuple[list[str], int, int]:
-    """The printed rows of one car; (rows, within tolerance, identifiable)."""
+    """The printed rows of one car; (rows, within tolerance, identifiable). Per parameter
+    ``err/sig`` (the reported sigma: jackknife and grid terms) and ``curv`` (the
+    curvature-only sigma it replaced, ``Estimate.sigma_curvature``), ``jack`` (the
+    jackknife's part alone, without the floors); the last rows count
+    the identifiable ones within ``HONEST_Z`` sigmas and give the median ``|error| /
+    sigma`` (about 0.67 for an honest Gaussian sigma), for both."""
     rows = [f"  {'parameter':28s} {'true':>9s} {'estimate':>10s} {'+- 1 sigma':>10s} "
-            f"{'error':>8s} {'err/sig':>7s}  within  identifiable"]
-    good = told = honest = 0
+            f"{'error':>8s} {'err/sig':>7s} {'curv':>6s} {'jack':>6s}  within  identifiable"]
+    good = told = honest = honest_c = 0
+    zs: list[float] = []
+    zs_c: list[float] = []
     for key, e in result.estimates.items():
         t = true.get(key, math.nan)
         tol, absolute = tolerance(key)
@@ -256,16 +268,39 @@ def table(name: str, result: SysidResult, true: dict[str, float]) -> tuple[list[
         err_txt = f"{1e3 * err:+7.1f}ms" if key.endswith("_s") and absolute else \
             f"{1e3 * err:+6.1f}mrad" if absolute else f"{100 * err / t:+7.1f}%"
         sig = f"{e.sigma:.3g}" if math.isfinite(e.sigma) else "inf"
-        z = abs(err) / e.sigma if e.sigma > 0 and math.isfinite(e.sigma) else math.nan
+        z, z_c = _z(err, e.sigma), _z(err, e.sigma_curvature)
+        z_j = _z(err, math.sqrt(max(e.sigma ** 2 - e.sigma_systematic ** 2, 0.0)))
         honest += e.identifiable and z <= HONEST_Z
+        honest_c += e.identifiable and z_c <= HONEST_Z
+        if e.identifiable:
+            zs.append(z)
+            zs_c.append(z_c)
         ident = "yes" if e.identifiable else f"NO: not identifiable from this run ({e.note})"
-        rows.append(f"  {key:28s} {t:9.4g} {e.value:10.4g} {sig:>10s} {err_txt:>8s} {z:7.1f}  "
-                    f"{'yes' if within else 'NO ':6s}  {ident}")
+        rows.append(f"  {key:28s} {t:9.4g} {e.value:10.4g} {sig:>10s} {err_txt:>8s} {z:7.1f} "
+                    f"{z_c:6.1f} {z_j:6.1f}  {'yes' if within else 'NO ':6s}  {ident}")
         good += within and e.identifiable
         told += e.identifiable
+    med = float(np.nanmedian(zs)) if zs and not np.all(np.isnan(zs)) else math.nan
+    med_c = float(np.nanmedian(zs_c)) if zs_c and not np.all(np.isnan(zs_c)) else math.nan
+    rows.append(f"  curvature-only sigma: {honest_c} of {told} within {HONEST_Z:g} sigma, "
+                f"median |error|/sigma {med_c:.2f}")
     rows.append(f"  sigma honest (|error| <= {HONEST_Z:g} sigma): {honest} of {told} "
-                "identifiable parameters")
+                f"identifiable parameters; median |error|/sigma {med:.2f} (honest: ~0.67)")
     return rows, good, told
+
+
+def save_signals(path: str, signals: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    """Write recorded `signals` (``identification.SIGNALS``: time [s], value) to `path`."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **{f"{k}__t": t for k, (t, _v) in signals.items()},
+                        **{f"{k}__v": v for k, (_t, v) in signals.items()})
+
+
+def load_signals(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The signals ``save_signals`` wrote to `path`."""
+    with np.load(path) as z:
+        names = sorted({k.rsplit("__", 1)[0] for k in z.files})
+        return {k: (z[f"{k}__t"], z[f"{k}__v"]) for k in names}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -290,12 +325,19 @@ def main(argv: list[str] | None = None) -> int:
                     help="flying laps of each --loop race after the out lap (default 3)")
     ap.add_argument("--with-true", action="store_true", help="--loop also races the planner "
                     "told the true car (the method's own gap to the limit; default off)")
+    ap.add_argument("--save-signals", default=None, metavar="DIR",
+                    help="also write each car's recorded signals to DIR/<car>.npz")
+    ap.add_argument("--signals", default=None, metavar="DIR",
+                    help="fit DIR/<car>.npz (a --save-signals recording) instead of racing")
     args = ap.parse_args(argv)
     args.drive = args.drive or args.loop
     for name in args.cars.split(","):
         true = car(name)
         cfg = config_of(true)
-        if args.drive:
+        if args.signals:
+            signals = load_signals(f"{args.signals}/{name}.npz")
+            print(f"\n{name}: the signals of {args.signals}/{name}.npz")
+        elif args.drive:
             signals, drv = run_drive(load_track(args.track), cfg.simulator, cfg.planner.dt_s)
             print(f"\n{name}: the identification drive on {args.track}: {report_line(drv)}")
         else:
@@ -304,6 +346,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"({summ['wall_s']:.0f} s wall), {summ['laps']} laps, {summ['off_track']} "
                   f"off-track events{', stopped: ' + summ['stop'] if summ['stop'] else ''}; "
                   f"|a_y| p95 {summ['ay_p95']:.2f} m/s^2")
+        if args.save_signals:
+            save_signals(f"{args.save_signals}/{name}.npz", signals)
         t0 = time.perf_counter()
         result = identify(signals, base_for(true), "pacejka")
         rows, good, told = table(name, result, truths(true, cfg))

@@ -111,8 +111,9 @@ def header(result: SysidResult, source: str, base_name: str) -> str:
         f"racestack sysid: the car identified from {source}",
         f"({result.duration_s:.0f} s of driving; tyre model {result.model}; geometry and mass "
         f"from {base_name}).",
-        "Each parameter: estimate +- 1-sigma uncertainty [unit] (statistical: the model's",
-        "own error is not in it). NOT IDENTIFIABLE ones are kept from the base car in",
+        "Each parameter: estimate +- 1-sigma uncertainty [unit] (a block jackknife over",
+        "the recording plus the grid's and the timing's floors). NOT IDENTIFIABLE ones",
+        "are kept from the base car in",
         "[vehicle] below (the value shown is a bound or a guess), except a Pacejka B and C",
         "of which only the product is told: those are written as fitted.",
         "The delays are not [vehicle] fields: [simulator] actuation_delay_s +",
@@ -121,6 +122,14 @@ def header(result: SysidResult, source: str, base_name: str) -> str:
     ]
     lines += [_fmt(e) for e in result.estimates.values()]
     return "\n".join(lines)
+
+
+def _estimate_doc(e: Estimate) -> dict[str, Any]:
+    """One estimate in the JSON (a sigma of inf as null)."""
+    finite = math.isfinite(e.sigma)
+    return {"value": e.value, "sigma": e.sigma if finite else None,
+            "sigma_systematic": e.sigma_systematic if finite else None,
+            "identifiable": e.identifiable, "unit": e.unit, "note": e.note}
 
 
 def write_outputs(result: SysidResult, base_data: dict[str, Any],
@@ -140,9 +149,7 @@ def write_outputs(result: SysidResult, base_data: dict[str, Any],
         "recording": source,
         "model": result.model,
         "duration_s": result.duration_s,
-        "estimates": {k: {"value": e.value, "sigma": e.sigma if math.isfinite(e.sigma)
-                          else None, "identifiable": e.identifiable, "unit": e.unit,
-                          "note": e.note} for k, e in result.estimates.items()},
+        "estimates": {k: _estimate_doc(e) for k, e in result.estimates.items()},
         "fit": result.fit_info,
     }
     js = out.with_suffix(".sysid.json")

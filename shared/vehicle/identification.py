@@ -46,10 +46,40 @@ tyre parameters (``TYRE_PARAMETERS`` per model):
 Geometry and mass (``m, I_z, l_f, l_r, h``) come from the base car (weighed and measured,
 not fitted).
 
-Uncertainty: one standard deviation from the curvature of the sum of squares at the
-optimum (Gauss-Newton ``s^2 (J^T J)^-1``, or a parabola through the profile of a grid
-parameter), scaled by the residuals' own variance and by ``n / n_eff`` for their
-correlation (lag-1 autocorrelation ``rho``: ``n_eff = n (1 - rho) / (1 + rho)``). A
+Uncertainty (``Estimate.sigma``, one standard deviation) has two parts in quadrature:
+
+- Statistical: a delete-one-block jackknife. The grid is cut into ``JACKKNIFE_BLOCKS``
+  contiguous stretches of equal length (about a lap each in a 2-minute race); each
+  estimate is made again without each block in turn and ``sigma^2 = (G - 1) / G sum_g
+  (x_g - mean)^2``. The residuals are correlated over seconds (the model's own error,
+  lap after lap), which the curvature of the sum of squares does not see even inflated for
+  their lag-1 correlation; a block's worth of data left out shows what another recording
+  would. No refit: the steering's servo simulation sums its squares per block for every
+  candidate of its grids at once (each replicate the vertex of its own profile); the speed
+  loop keeps its sums per block for every (delay, a_max) and its gains are a linear least
+  squares (refitted without each block); the tyres take one Gauss-Newton step from the
+  optimum on the other blocks' rows of the Jacobian the fit already has (linearised:
+  a block is a tenth of the data).
+- Systematic, what no resampling of this recording shows (``Estimate.sigma_systematic``):
+  the grid and the timing. A delay is fitted on the grid's steps and its signals are
+  stamped only to within their sample period (a sample may stand for any instant of it:
+  the simulator's IMU gives the mean acceleration over its step, stamped at the end; a
+  real one filters), so its floor is ``sqrt(dt^2 + sum T_s^2) / sqrt 12``
+  (``timing_sigma``: the grid's step, the period of each signal in it). A parameter that
+  trades off against a delay (the servo's time constant and rate limit, the speed loop's
+  gains and acceleration limit) gets ``|d x / d delay|`` (its optimum at the neighbouring
+  delays) times that floor. The tyres: each signal (yaw rate, lateral acceleration,
+  steering angle, speed, acceleration demand) shifted by one grid step, the fit's linear
+  response ``-(J^T J)^-1 J^T dr`` scaled to the signal's ``T / sqrt 12``, the signals'
+  responses independent (one simulation each for the inputs).
+
+``Estimate.sigma_curvature`` keeps the former, curvature-only sigma (Gauss-Newton
+``s^2 (J^T J)^-1`` or a parabola through a grid parameter's profile, scaled by ``n /
+n_eff`` for the lag-1 correlation) for comparison; the Pacejka B-C correlation below is
+that curvature's (the shape of the sum of squares, not a spread of ten replicates).
+A delay is identifiable when its sigma is at most ``DELAY_SIGMA_MAX_S`` (a relative sigma
+means little for a delay near 0); a rate limit only when the fit without it (the fastest
+rate tried) is worse by ``LIMIT_SIGNIFICANCE`` jackknife sigmas of that difference. A
 parameter whose relative uncertainty exceeds ``IDENTIFIABLE_REL_SIGMA``, whose grid optimum
 sits at the grid's edge, or whose effect the run never shows (a rate limit never reached,
 friction never used up, an acceleration limit never hit) is reported as not identifiable
@@ -68,7 +98,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -112,6 +142,13 @@ FRICTION_UNUSED = "friction never used up"
 BETA0_STEP_RAD = 1e-4
 #: Pass 2 of the tyre fit drops windows whose rms residual exceeds this x the median.
 OUTLIER_RMS = 3.0
+#: Contiguous blocks of the recording the delete-one-block jackknife leaves out in turn.
+JACKKNIFE_BLOCKS = 10
+#: A delay is identifiable when its 1-sigma is at most this [s] (and its optimum interior).
+DELAY_SIGMA_MAX_S = 0.02
+#: A rate limit is "reached" when the fit without it is worse by this many jackknife
+#: sigmas of that difference (the data prefer the limit beyond chance).
+LIMIT_SIGNIFICANCE = 3.0
 #: A parameter is identifiable when its 1-sigma is at most this share of its value.
 IDENTIFIABLE_REL_SIGMA = 0.25
 #: Steering grids: delay [s], time constant [s], rate limit [rad/s].
@@ -161,6 +198,29 @@ class Estimate:
     identifiable: bool
     unit: str = ""
     note: str = ""
+    #: the sigma from the curvature of the sum of squares alone (inflated for the
+    #: residuals' lag-1 correlation): what ``sigma`` was before the jackknife, kept for
+    #: comparison (NaN: not computed)
+    sigma_curvature: float = math.nan
+    #: the part of ``sigma`` from the grid's and the timing's floors (module docstring,
+    #: "Uncertainty"); the rest, ``sqrt(sigma^2 - sigma_systematic^2)``, is the jackknife's
+    sigma_systematic: float = 0.0
+
+
+def _with_curvature(out: dict[str, Estimate], curv: Mapping[str, float],
+                    systematic: Mapping[str, float] | None = None) -> dict[str, Estimate]:
+    """`out` with each estimate's ``sigma_curvature`` from `curv` and its
+    ``sigma_systematic`` from `systematic` (by name; finite sigmas only)."""
+    systematic = systematic or {}
+    res = {}
+    for k, e in out.items():
+        upd: dict[str, float] = {}
+        if k in curv:
+            upd["sigma_curvature"] = float(curv[k])
+        if k in systematic and math.isfinite(e.sigma):
+            upd["sigma_systematic"] = float(systematic[k])
+        res[k] = replace(e, **upd) if upd else e
+    return res
 
 
 @dataclass
@@ -239,6 +299,9 @@ class Grid:
     ax: np.ndarray
     ay: np.ndarray
     ok: np.ndarray
+    #: each measured signal's median sample spacing [s] (``SIGNALS`` names; the timing
+    #: floors of the sigmas, module docstring)
+    periods: Mapping[str, float] = field(default_factory=dict)
 
 
 def _clean(name: str, series: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -286,9 +349,10 @@ def resample(signals: Mapping[str, Any], dt: float = GRID_DT_S) -> Grid:
         ok[(ts[i] - ts[i - 1]) > MAX_GAP_S] = False
         return np.interp(t, ts, vs)
 
+    periods = {k: float(np.median(np.diff(ts))) for k, (ts, _v) in s.items()}
     return Grid(t, held("cmd_speed_mps"), held("cmd_steering_rad"), interp("speed_mps"),
                 interp("steering_rad"), interp("yaw_rate_radps"), interp("ax_mps2"),
-                interp("ay_mps2"), ok)
+                interp("ay_mps2"), ok, periods)
 
 
 def check_cornering(g: Grid) -> None:
@@ -335,12 +399,65 @@ def _profile_sigma(x: np.ndarray, sse: np.ndarray, s2: float) -> tuple[float, fl
     return x0, math.sqrt(s2 / a), True
 
 
+def timing_sigma(g: Grid, *names: str, grid: bool = False) -> float:
+    """The timing floor [s]: each of the signals `names` is stamped to within its sample
+    period T (a sample may stand for any instant of its period: the IMU's accelerations
+    are the mean over the simulator's step, a real one filters), ``T / sqrt 12`` each,
+    plus ``dt / sqrt 12`` when `grid` (a delay fitted on the grid's steps), independent,
+    in quadrature."""
+    dt = float(g.t[1] - g.t[0])
+    terms = [g.periods.get(n, dt) for n in names] + ([dt] if grid else [])
+    return math.sqrt(sum(x * x for x in terms) / 12.0)
+
+
+def jackknife_blocks(n: int, n_blocks: int = JACKKNIFE_BLOCKS) -> np.ndarray:
+    """(n,) block of each grid sample: `n_blocks` contiguous stretches of equal length."""
+    return (np.arange(n) * n_blocks) // max(n, 1)
+
+
+def jackknife_sigma(replicates: np.ndarray) -> np.ndarray:
+    """Delete-one-block jackknife standard deviation of estimates `replicates` (G, ...):
+    ``sqrt((G - 1) / G * sum_g (x_g - mean)^2)`` (the spread a refit on other data shows,
+    whatever the residuals' correlation within a block)."""
+    x = np.asarray(replicates, dtype=float)
+    n_b = x.shape[0]
+    return np.sqrt((n_b - 1) / n_b * np.sum((x - x.mean(axis=0)) ** 2, axis=0))
+
+
+def _vertex(x: np.ndarray, sse: np.ndarray) -> float:
+    """The parabola vertex of ``_profile_sigma`` (the grid minimum at an edge)."""
+    return _profile_sigma(x, sse, 1.0)[0]
+
+
+def _jack_profile(x: np.ndarray, total: np.ndarray, per_block: np.ndarray,
+                  axes: tuple[int, ...]) -> float:
+    """Jackknife sigma of the profile vertex over grid `x`: per block g the profile
+    ``min over axes of (total - per_block[g])``, its vertex; their spread."""
+    reps = [_vertex(x, (total - b).min(axis=axes) if axes else total - b) for b in per_block]
+    return float(jackknife_sigma(np.array(reps)))
+
+
+def _delay_coupling(values: list[float], i: int, step_s: float) -> float:
+    """|d value / d delay| from the values at delays ``i - 1, i, i + 1`` of a grid of step
+    `step_s` (central difference, one-sided at an edge): the systematic error of a
+    parameter that trades off against a delay the grid resolves only to ``dt / sqrt 12``
+    is this times ``dt / sqrt 12``."""
+    lo, hi = max(i - 1, 0), min(i + 1, len(values) - 1)
+    if hi == lo:
+        return 0.0
+    slope = (values[hi] - values[lo]) / ((hi - lo) * step_s)
+    return abs(slope) if math.isfinite(slope) else 0.0
+
+
 # ------------------------------------------------------------------ steering
 def simulate_servo(
     g: Grid, delay_s: np.ndarray, tau_s: np.ndarray, rate_radps: np.ndarray,
+    blocks: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(SSE per candidate, predicted angle of the first candidate (n,)) of the servo model
-    (module docstring) for candidate arrays of equal shape (delay on the grid's steps)."""
+    (module docstring) for candidate arrays of equal shape (delay on the grid's steps).
+    `blocks` (n,) ints in ``0..G-1`` (``jackknife_blocks``): the SSE per block instead,
+    shape (G, *candidates), which sums to the total."""
     dt = float(g.t[1] - g.t[0])
     shape = np.shape(delay_s)
     lag = np.rint(np.ravel(delay_s) / dt).astype(int)
@@ -348,33 +465,42 @@ def simulate_servo(
     step = np.ravel(rate_radps) * dt
     n = len(g.t)
     delta = np.full(lag.shape, g.d[0])
-    sse = np.zeros(lag.shape)
+    n_b = 1 if blocks is None else int(np.max(blocks)) + 1
+    blk = np.zeros(n, dtype=int) if blocks is None else np.asarray(blocks, dtype=int)
+    sse = np.zeros((n_b, *lag.shape))
     first = np.empty(n)
     cmd, meas, ok = g.cmd_d, g.d, g.ok
     idx = np.arange(n)
     for k in range(n):
         if ok[k]:
             e = delta - meas[k]
-            sse += e * e
+            sse[blk[k]] += e * e
         first[k] = delta[0]
         target = cmd[np.clip(idx[k] - lag, 0, n - 1)]
         delta = delta + np.clip((target - delta) * gain, -step, step)
-    return sse.reshape(shape), first
+    if blocks is None:
+        return sse[0].reshape(shape), first
+    return sse.reshape((n_b, *shape)), first
 
 
 def fit_steering(g: Grid, base: DynamicVehicleParams) -> tuple[dict[str, Estimate], np.ndarray]:
     """Steering delay, time constant and rate limit (module docstring); also the predicted
-    road-wheel angle on the grid."""
+    road-wheel angle on the grid. Sigmas: the delete-one-block jackknife of each profile's
+    vertex, with the grid's systematic terms (module docstring, "Uncertainty")."""
     dt = float(g.t[1] - g.t[0])
+    q = timing_sigma(g, "steering_rad", grid=True)  # the delay's grid and timing floor
+    blocks = jackknife_blocks(len(g.t))
     dd, tt, rr = np.meshgrid(STEER_DELAYS_S, STEER_TAUS_S, STEER_RATES_RADPS, indexing="ij")
-    sse, _ = simulate_servo(g, dd, tt, rr)
+    sse_b, _ = simulate_servo(g, dd, tt, rr, blocks)
+    sse = sse_b.sum(axis=0)
     i, j, k = np.unravel_index(int(np.argmin(sse)), sse.shape)
     # finer grid around the coarse optimum: delay on the grid step, tau and rate in log
     fd = STEER_DELAYS_S[max(i - 2, 0):i + 3]
     ft = np.geomspace(STEER_TAUS_S[max(j - 1, 0)], STEER_TAUS_S[min(j + 1, 14)], 9)
     fr = np.geomspace(STEER_RATES_RADPS[max(k - 1, 0)], STEER_RATES_RADPS[min(k + 1, 14)], 9)
     dd, tt, rr = np.meshgrid(fd, ft, fr, indexing="ij")
-    sse_f, _ = simulate_servo(g, dd, tt, rr)
+    sse_fb, _ = simulate_servo(g, dd, tt, rr, blocks)
+    sse_f = sse_fb.sum(axis=0)
     i2, j2, k2 = np.unravel_index(int(np.argmin(sse_f)), sse_f.shape)
     best = (fd[i2], ft[j2], fr[k2])
     _, pred = simulate_servo(g, np.array([best[0]]), np.array([best[1]]), np.array([best[2]]))
@@ -386,18 +512,32 @@ def fit_steering(g: Grid, base: DynamicVehicleParams) -> tuple[dict[str, Estimat
     prof_d = sse.min(axis=(1, 2))
     d0, sd, interior = _profile_sigma(STEER_DELAYS_S, prof_d, s2)
     d0 = best[0] if abs(d0 - best[0]) > dt else d0
-    sd = max(sd, dt / math.sqrt(12.0)) if interior else math.inf
+    curv = {"steering_delay_s": max(sd, dt / math.sqrt(12.0))}
+    sysd = {"steering_delay_s": q}
+    sd = math.hypot(_jack_profile(STEER_DELAYS_S, sse, sse_b, (1, 2)), q)
+    sd = sd if interior else math.inf
     out["steering_delay_s"] = _estimate("steering_delay_s", d0, sd, "s",
                                         "" if interior else "at the edge of the delays tried")
+    if sd <= DELAY_SIGMA_MAX_S and interior:  # a delay's relative sigma means little
+        out["steering_delay_s"] = Estimate("steering_delay_s", d0, sd, True, "s")
+    # tau and the rate limit trade off against the delay (on the grid's steps only): their
+    # optimum at the neighbouring delays gives the systematic term (_delay_coupling)
+    tau_at = [_vertex(np.log(ft), sse_f[m].min(axis=1)) for m in range(len(fd))]
+    rate_at = [_vertex(np.log(fr), sse_f[m].min(axis=0)) for m in range(len(fd))]
     prof_t = sse_f.min(axis=(0, 2))
     lt, st_, interior_t = _profile_sigma(np.log(ft), prof_t, s2)
     tau_note = "" if interior_t else "the servo's lag is shorter than the data resolve"
-    rel_t = st_
+    rel_t, jack_t = st_, _jack_profile(np.log(ft), sse_f, sse_fb, (0, 2))
     if not interior_t:
         prof_t = sse.min(axis=(0, 2))
         lt, rel_t, interior_t = _profile_sigma(np.log(STEER_TAUS_S), prof_t, s2)
+        jack_t = _jack_profile(np.log(STEER_TAUS_S), sse, sse_b, (0, 2))
         tau_note = "" if interior_t else tau_note
     tau_hat = math.exp(lt)
+    curv["steering_time_constant_s"] = tau_hat * rel_t
+    sysd["steering_time_constant_s"] = tau_hat * _delay_coupling(tau_at, i2, dt) * q
+    rel_t = math.hypot(jack_t, _delay_coupling(tau_at, i2, dt) * q) if math.isfinite(
+        rel_t) else rel_t
     if tau_hat < 2.0 * dt:  # a lag of a grid step or two: an upper bound, good enough
         out["steering_time_constant_s"] = Estimate(
             "steering_time_constant_s", tau_hat, max(tau_hat * rel_t, dt), True, "s",
@@ -406,25 +546,39 @@ def fit_steering(g: Grid, base: DynamicVehicleParams) -> tuple[dict[str, Estimat
         out["steering_time_constant_s"] = _estimate(
             "steering_time_constant_s", tau_hat, tau_hat * rel_t, "s", tau_note)
     # rate limit: identifiable only if the fitted servo actually runs into it
-    tau, rate = best[1], best[2]
+    rate = best[2]
     dt_rate = np.abs(np.diff(pred)) / dt
     at_limit = float(np.mean(dt_rate > 0.98 * rate))
     prof_r = sse_f.min(axis=(0, 1))
     lr_, sr, interior_r = _profile_sigma(np.log(fr), prof_r, s2)
+    jack_r = _jack_profile(np.log(fr), sse_f, sse_fb, (0, 1))
     if not interior_r:
         prof_r = sse.min(axis=(0, 1))
         lr_, sr, interior_r = _profile_sigma(np.log(STEER_RATES_RADPS), prof_r, s2)
+        jack_r = _jack_profile(np.log(STEER_RATES_RADPS), sse, sse_b, (0, 1))
+    curv["steering_rate_max_radps"] = math.exp(lr_) * sr
+    if math.isfinite(sr):
+        sr = math.hypot(jack_r, _delay_coupling(rate_at, i2, dt) * q)
+        sysd["steering_rate_max_radps"] = math.exp(lr_) * _delay_coupling(rate_at, i2, dt) * q
     seen = float(np.max(np.abs(np.diff(g.d))) / dt)
-    if at_limit < 0.005:
+    # does the run need the limit? the gain in SSE over the fastest rate tried, against
+    # its jackknife spread (each block's own share of the gain)
+    gain_sse = float(sse[:, :, -1].min() - sse.min())
+    gain_jack = float(jackknife_sigma(np.array(
+        [(sse - b)[:, :, -1].min() - (sse - b).min() for b in sse_b])))
+    needed = gain_sse > LIMIT_SIGNIFICANCE * gain_jack
+    if at_limit < 0.005 or not needed:
         out["steering_rate_max_radps"] = Estimate(
             "steering_rate_max_radps", max(seen, rate), math.inf, False, "rad/s",
-            f"never reached: at least {seen:.2f} rad/s seen")
+            f"never reached: at least {seen:.2f} rad/s seen" if at_limit < 0.005 else
+            f"not needed by the data (the fit without it is worse by "
+            f"{gain_sse / max(gain_jack, 1e-300):.1f} jackknife sigmas): at least "
+            f"{seen:.2f} rad/s seen")
     else:
         out["steering_rate_max_radps"] = _estimate(
             "steering_rate_max_radps", math.exp(lr_), math.exp(lr_) * sr, "rad/s",
             "" if interior_r else "at the edge of the grid")
-    del tau
-    return out, pred
+    return _with_curvature(out, curv, sysd), pred
 
 
 def _estimate(name: str, value: float, sigma: float, unit: str, note: str = "") -> Estimate:
@@ -473,8 +627,11 @@ def fit_speed(g: Grid, base: DynamicVehicleParams, xdrag: np.ndarray | None = No
     idx = np.arange(n)
     scale = np.minimum(1.0, base.v_switch_mps / np.maximum(np.abs(g.v), 1e-3))
     y = a[ok]
+    bk = jackknife_blocks(n)[ok]
+    n_b = JACKKNIFE_BLOCKS
     sse = np.full((len(SPEED_DELAYS_S), len(SPEED_AMAX_MPS2)), np.inf)
-    fits: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    sse_b = np.zeros((n_b, *sse.shape))
+    fits: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for i, delay in enumerate(SPEED_DELAYS_S):
         e = (g.cmd_v[np.clip(idx - round(delay / dt), 0, n - 1)] - g.v)[ok]
         grow = ((e > 0) & (g.v[ok] >= 0)) | ((e < 0) & (g.v[ok] <= 0))
@@ -489,9 +646,10 @@ def fit_speed(g: Grid, base: DynamicVehicleParams, xdrag: np.ndarray | None = No
             pred = np.clip(np.where(grow, k[0], k[1]) * e, -lim, lim)
             res = y - pred
             sse[i, j] = float(res @ res)
-            fits[(i, j)] = (k, X[use])
+            sse_b[:, i, j] = np.bincount(bk, res * res, minlength=n_b)[:n_b]
+            fits[(i, j)] = (k, X[use], use)
     i, j = np.unravel_index(int(np.argmin(sse)), sse.shape)
-    k, X = fits[(i, j)]
+    k, X, use = fits[(i, j)]
     delay, a_max = SPEED_DELAYS_S[i], SPEED_AMAX_MPS2[j]
     e_all = g.cmd_v[np.clip(idx - round(delay / dt), 0, n - 1)] - g.v
     grow_all = ((e_all > 0) & (g.v >= 0)) | ((e_all < 0) & (g.v <= 0))
@@ -501,23 +659,44 @@ def fit_speed(g: Grid, base: DynamicVehicleParams, xdrag: np.ndarray | None = No
     m = len(res)
     s2 = float(res @ res) / max(m - 4, 1) * _n_eff_factor(res)
     cov = s2 * np.linalg.pinv(X.T @ X)
+    q = timing_sigma(g, "ax_mps2", "speed_mps", grid=True)  # the delay's floor
+    # the gains' jackknife: the final regression (its unsaturated samples) without each
+    # block in turn; their systematic term: the gains at the neighbouring delays
+    y_use, bk_use = y[use], bk[use]
+    k_jack = np.array([np.linalg.lstsq(X[bk_use != b], y_use[bk_use != b], rcond=None)[0]
+                       for b in range(n_b)])
+    sig_k = jackknife_sigma(k_jack)
+    k_at = [fits[(m, j)][0] for m in range(len(SPEED_DELAYS_S))]
     out: dict[str, Estimate] = {}
+    curv: dict[str, float] = {}
+    sysd: dict[str, float] = {"speed_delay_s": q}
     for c, name in enumerate(("speed_gain_accel_per_s", "speed_gain_brake_per_s")):
         used = int(np.sum(X[:, c] != 0))
         if used < 50:
             out[name] = Estimate(name, getattr(base, name), math.inf, False, "1/s",
                                  f"only {used} unsaturated samples")
         else:
-            out[name] = _estimate(name, float(k[c]), math.sqrt(max(cov[c, c], 0.0)), "1/s")
+            curv[name] = math.sqrt(max(cov[c, c], 0.0))
+            sys_k = sysd[name] = _delay_coupling([float(kk[c]) for kk in k_at], int(i), dt) * q
+            out[name] = _estimate(name, float(k[c]), math.hypot(float(sig_k[c]), sys_k),
+                                  "1/s")
     d0, sd, interior = _profile_sigma(SPEED_DELAYS_S, sse.min(axis=1), s2)
-    sd = max(sd, dt / math.sqrt(12.0)) if interior else math.inf
+    curv["speed_delay_s"] = max(sd, dt / math.sqrt(12.0))
+    sd = math.hypot(_jack_profile(SPEED_DELAYS_S, sse, sse_b, (1,)), q) if interior \
+        else math.inf
     out["speed_delay_s"] = _estimate("speed_delay_s", d0, sd, "s",
                                      "" if interior else "at the edge of the delays tried")
-    if sd < 0.5 * dt and interior:  # a delay of ~0 has an ill-defined relative sigma
+    if sd <= DELAY_SIGMA_MAX_S and interior:  # a delay's relative sigma means little
         out["speed_delay_s"] = Estimate("speed_delay_s", d0, sd, True, "s")
     saturated = ok & (np.abs(np.where(grow_all, k[0], k[1]) * e_all) > lim_all)
     n_sat = int(np.sum(saturated))
     la, sa, interior_a = _profile_sigma(np.log(SPEED_AMAX_MPS2), sse.min(axis=0), s2)
+    curv["accel_max_mps2"] = math.exp(la) * sa
+    if math.isfinite(sa):
+        la_at = [_vertex(np.log(SPEED_AMAX_MPS2), sse[m]) for m in range(len(SPEED_DELAYS_S))]
+        sa = math.hypot(_jack_profile(np.log(SPEED_AMAX_MPS2), sse, sse_b, (0,)),
+                        _delay_coupling(la_at, int(i), dt) * q)
+        sysd["accel_max_mps2"] = math.exp(la) * _delay_coupling(la_at, int(i), dt) * q
     seen = float(np.max(np.abs(a[ok]))) if ok.any() else 0.0
     if n_sat < 20 or not interior_a:
         out["accel_max_mps2"] = Estimate(
@@ -526,7 +705,7 @@ def fit_speed(g: Grid, base: DynamicVehicleParams, xdrag: np.ndarray | None = No
     else:
         out["accel_max_mps2"] = _estimate("accel_max_mps2", math.exp(la), math.exp(la) * sa,
                                           "m/s^2")
-    return out, a, np.where(ok, pred, np.nan)
+    return _with_curvature(out, curv, sysd), a, np.where(ok, pred, np.nan)
 
 
 # ------------------------------------------------------------------ tyres
@@ -762,7 +941,34 @@ def fit_tyres(
     s2 = cost / max(len(res) - len(theta), 1)
     infl = max(_n_eff_factor(res[:n_r]), _n_eff_factor(res[n_r:]))
     cov = s2 * infl * np.linalg.pinv(J.T @ J, rcond=1e-10)
-    sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    sig_curv = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    cov_jack = _tyre_jackknife_cov(J, res, theta, starts, len(g.t), n_s)
+    # the timing floors: each signal shifted by one grid step (measurements: their rows
+    # of the residuals; inputs: one simulation each), the fit's linear response scaled
+    # to the signal's timing sigma (timing_sigma), the responses independent
+    JtJ_pinv = np.linalg.pinv(J.T @ J, rcond=1e-10)
+    p_t, off_t = _params_from(theta[:n_g], model, base)
+    b0 = theta[n_g:] if n_w else None
+    a_base = g.ax if a_in is None else a_in
+    dres: dict[str, np.ndarray] = {
+        "yaw_rate_radps": np.concatenate([(g.r[idx] - g.r[idx - 1]).ravel() / sig_r,
+                                          np.zeros(idx.size)]),
+        "ay_mps2": np.concatenate([np.zeros(idx.size),
+                                   (g.ay[idx] - g.ay[idx - 1]).ravel() / sig_ay]),
+    }
+    for name, fld in (("steering_rad", "d"), ("speed_mps", "v"), ("ax_mps2", "")):
+        x = a_base if not fld else getattr(g, fld)
+        x_late = np.concatenate([x[:1], x[:-1]])
+        g_s = replace(g, **{fld: x_late}) if fld else g
+        pr = simulate_lateral(g_s, starts, p_t, off_t, x_late if not fld else a_in, b0)
+        dres[name] = np.concatenate([((pr.r[:, burn:] - r_meas) / sig_r).ravel(),
+                                     ((pr.ay[:, burn:] - ay_meas) / sig_ay).ravel()]) - res
+    cov_sys = np.zeros_like(cov_jack)
+    for name, d_res in dres.items():
+        dth = -JtJ_pinv @ (J.T @ d_res) * (timing_sigma(g, name) / dt)
+        cov_sys += np.outer(dth, dth)
+    sig = np.sqrt(np.maximum(np.diag(cov_jack + cov_sys), 0.0))
+    sig_sys = np.sqrt(np.maximum(np.diag(cov_sys), 0.0))
     names = TYRE_PARAMETERS[model]
     p_hat, off = _params_from(theta[:n_g], model, base)
     pred = simulate_lateral(g, starts, p_hat, off, a_in, theta[n_g:] if n_w else None)
@@ -770,7 +976,7 @@ def fit_tyres(
     out: dict[str, Estimate] = {}
     sat_share = float(np.mean(sat[:, burn:]))
     with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(sig, sig)
+        corr = cov / np.outer(sig_curv, sig_curv)  # the curvature's shape: B against C
     for i, name in enumerate(names):
         val = float(math.exp(theta[i]))
         sigma = val * float(sig[i]) if np.isfinite(sig[i]) else math.inf
@@ -788,6 +994,11 @@ def fit_tyres(
     s_off = float(sig[n_g - 1])
     out["steering_offset_rad"] = Estimate("steering_offset_rad", off, s_off, s_off < 0.01,
                                           "rad", "" if s_off < 0.01 else "not resolved")
+    curv = {name: math.exp(theta[i]) * float(sig_curv[i]) for i, name in enumerate(names)}
+    curv["steering_offset_rad"] = float(sig_curv[n_g - 1])
+    sysd = {name: math.exp(theta[i]) * float(sig_sys[i]) for i, name in enumerate(names)}
+    sysd["steering_offset_rad"] = float(sig_sys[n_g - 1])
+    out = _with_curvature(out, curv, sysd)
     r_full = np.full(len(g.t), np.nan)
     ay_full = np.full(len(g.t), np.nan)
     full = starts[:, None] + np.arange(burn, w)[None, :]
@@ -808,6 +1019,32 @@ def fit_tyres(
                                                              / sig_ay) ** 2) / 2, axis=1))}
     return out, {"yaw_rate": r_full, "ay": ay_full, "drag": drag_full,
                  "xdrag": xdrag_full, "known": known}, info
+
+
+def _tyre_jackknife_cov(J: np.ndarray, res: np.ndarray, theta: np.ndarray,
+                        starts: np.ndarray, n_grid: int, n_s: int) -> np.ndarray:
+    """Delete-one-block jackknife covariance of the tyre fit's `theta`, linearised: the
+    windows grouped by the block (``jackknife_blocks`` of the grid's `n_grid` samples) of
+    their start; without block g, one Gauss-Newton step from `theta` on the other windows'
+    rows of `J` / `res` (rows: yaw rate then lateral acceleration, each window's `n_s`
+    scored samples in turn), ``theta_g = theta - (J_-g' J_-g)^+ J_-g' r_-g``; the
+    covariance ``(G - 1) / G sum_g (theta_g - mean)(theta_g - mean)'`` over the blocks
+    that hold windows. No refit: the windows' simulations are already in `J`."""
+    n_w = len(starts)
+    win_block = jackknife_blocks(n_grid)[starts]
+    row_block = np.tile(np.repeat(win_block, n_s), 2)
+    if len(row_block) != len(res) or n_w == 0:
+        return np.full((len(theta), len(theta)), np.inf)
+    reps = []
+    for b in np.unique(win_block):
+        keep = row_block != b
+        Jk, rk = J[keep], res[keep]
+        reps.append(theta - np.linalg.pinv(Jk.T @ Jk, rcond=1e-10) @ (Jk.T @ rk))
+    reps_a = np.array(reps)
+    if len(reps_a) < 2:
+        return np.full((len(theta), len(theta)), np.inf)
+    d = reps_a - reps_a.mean(axis=0)
+    return (len(reps_a) - 1) / len(reps_a) * d.T @ d
 
 
 # ------------------------------------------------------------------ all together
