@@ -313,6 +313,26 @@ class CimpccLineSettings(Section):
         "bounds the steering: the identified car's 0.158 s, not the gym's 0.01 s): the "
         "wheels' angle a state behind the servo, the steering input its target",
     )
+    speed_estimate_gain: float = Field(
+        1.0, gt=0.0, le=1.0,
+        description="model 'kinematic_slip_speed': the car's speed at each pose is the speed "
+        "loop's prediction plus this share of what the pose's displacement says beyond it "
+        "(1: the displacement alone, exact on true poses; a filtered pose's noise over one "
+        "period becomes speed noise the command cap multiplies by about 4). The planner "
+        "on the EKF's or the lidar's poses takes ekf_speed_estimate_gain / "
+        "lidar_speed_estimate_gain instead (``mintime.requests.for_pose_source``)",
+    )
+    ekf_speed_estimate_gain: float = Field(
+        0.4, gt=0.0, le=1.0,
+        description="speed_estimate_gain of the planner on the EKF's poses (the bench's "
+        "--estimator ekf, the stack's pose_source 'external'); tuned on gen:1001-1003 "
+        "(over the cap 4 -> 0 times)",
+    )
+    lidar_speed_estimate_gain: float = Field(
+        0.4, gt=0.0, le=1.0,
+        description="speed_estimate_gain of the planner on the lidar particle filter's poses "
+        "(--estimator lidar, pose_source 'lidar')",
+    )
     lead_pose_s: float = Field(
         0.05, ge=0.0, le=0.5,
         description="plan from the pose (and speed) predicted this far ahead with the acting "

@@ -93,3 +93,21 @@ def test_racestack_mintime_makes_the_lap_the_stack_s_planner_reads(
     want = raceline_request(for_pose_source(cfg.planner, "lidar"), cfg.vehicle).settings
     assert seen == [want]
     assert want.margin_m == pytest.approx(cfg.planner.raceline.min_time_margin_m + 0.033)
+
+
+def test_cimpcc_line_reads_its_speed_from_filtered_poses_with_the_source_s_gain() -> None:
+    """``cimpcc-line``'s speed estimate on the EKF's or the lidar's poses leans on its speed
+    loop (``[planner.cimpcc_line] ekf_speed_estimate_gain`` / ``lidar_...``); on the true
+    pose it is the displacement alone (the configured ``speed_estimate_gain``, 1)."""
+    cfg = config_from_dict({"planner": {"cimpcc_line": {"ekf_speed_estimate_gain": 0.45,
+                                                        "lidar_speed_estimate_gain": 0.25}}})
+    gains = {pose: for_pose_source(cfg.planner, pose).cimpcc_line.speed_estimate_gain
+             for pose in ("truth", "ekf", "lidar")}
+    assert gains == {"truth": 1.0, "ekf": 0.45, "lidar": 0.25}
+    assert for_pose_source(cfg.planner, "truth") is cfg.planner
+    # the raceline's margin comes along with it, and nothing else changes
+    ekf = for_pose_source(cfg.planner, "ekf")
+    assert ekf.raceline.min_time_margin_m == pytest.approx(
+        cfg.planner.raceline.min_time_margin_m + cfg.planner.raceline.ekf_margin_m)
+    assert ekf.cimpcc_line.model_copy(update={"speed_estimate_gain": 1.0}) == (
+        cfg.planner.cimpcc_line)

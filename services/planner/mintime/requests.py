@@ -97,6 +97,8 @@ def min_time_settings(
 
 #: The pose sources of ``for_pose_source`` and their margin keys of ``[planner.raceline]``.
 POSE_MARGINS = {"truth": None, "ekf": "ekf_margin_m", "lidar": "lidar_margin_m"}
+#: ... and their ``[planner.cimpcc_line]`` speed-estimate gains (``speed_estimate_gain``).
+POSE_SPEED_GAINS = {"ekf": "ekf_speed_estimate_gain", "lidar": "lidar_speed_estimate_gain"}
 #: The stack's ``[localization] pose_source`` -> the pose source of ``for_pose_source``: an
 #: ``external`` pose (the simulator's pose sensor, a localiser) reaches the planner through the
 #: bridge's EKF (the bench's ``--estimator ekf``), ``lidar`` through the particle filter into
@@ -129,8 +131,10 @@ def for_stack(settings: PlannerSettings, pose_source: str) -> PlannerSettings:
 def for_pose_source(settings: PlannerSettings, pose: str) -> PlannerSettings:
     """`settings` for a planner that sees poses from `pose` (``POSE_MARGINS``: ``truth``,
     ``ekf``, ``lidar``): the raceline's ``min_time_margin_m`` widened by that source's
-    margin (``ekf_margin_m``, ``lidar_margin_m``), a tube for the localisation error; the
-    settings themselves for ``truth`` or a zero margin.
+    margin (``ekf_margin_m``, ``lidar_margin_m``), a tube for the localisation error, and
+    ``cimpcc-line``'s ``speed_estimate_gain`` that source's (``POSE_SPEED_GAINS``: the
+    speed it reads off consecutive filtered poses leans on its speed loop's prediction);
+    the settings themselves for ``truth``.
 
     Raises:
         ValueError: an unknown pose source.
@@ -138,12 +142,20 @@ def for_pose_source(settings: PlannerSettings, pose: str) -> PlannerSettings:
     if pose not in POSE_MARGINS:
         raise ValueError(f"unknown pose source {pose!r}; choose one of {', '.join(POSE_MARGINS)}")
     key = POSE_MARGINS[pose]
-    extra = 0.0 if key is None else float(getattr(settings.raceline, key))
-    if extra == 0.0:
+    if key is None:
         return settings
-    o = settings.raceline
-    raceline = o.model_copy(update={"min_time_margin_m": min(o.min_time_margin_m + extra, 1.0)})
-    return settings.model_copy(update=dict(raceline=raceline))  # the section, not the method
+    update = {}
+    extra = float(getattr(settings.raceline, key))
+    if extra != 0.0:
+        o = settings.raceline
+        update["raceline"] = o.model_copy(
+            update={"min_time_margin_m": min(o.min_time_margin_m + extra, 1.0)})
+    line = settings.cimpcc_line
+    gain = float(getattr(line, POSE_SPEED_GAINS[pose]))
+    if gain != line.speed_estimate_gain:
+        update["cimpcc_line"] = line.model_copy(update={"speed_estimate_gain": gain})
+    # the sections, not the method
+    return settings.model_copy(update=update) if update else settings
 
 
 def line_request(
