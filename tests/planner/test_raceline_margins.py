@@ -31,7 +31,10 @@ def test_each_pose_source_adds_its_own_margin() -> None:
     lidar = for_pose_source(settings, "lidar")
     assert lidar.raceline.min_time_margin_m == pytest.approx(0.05)
     assert lidar.raceline.lidar_margin_m == 0.03  # the rest is the same
-    assert lidar.model_copy(update={"raceline": settings.raceline}) == settings
+    # the rest is the same: the raceline's margin and cimpcc-line's speed-estimate gain only
+    assert lidar.cimpcc_line.speed_estimate_gain == settings.cimpcc_line.lidar_speed_estimate_gain
+    assert lidar.model_copy(
+        update={"raceline": settings.raceline, "cimpcc_line": settings.cimpcc_line}) == settings
     assert min_time_settings(lidar.raceline, REAL_CAR_IDENTIFIED).margin_m == pytest.approx(
         0.05 + settings.raceline.servo_margin_m)
     assert set(POSE_MARGINS) == {"truth", "ekf", "lidar"}

@@ -144,17 +144,16 @@ def for_pose_source(settings: PlannerSettings, pose: str) -> PlannerSettings:
     key = POSE_MARGINS[pose]
     if key is None:
         return settings
-    update = {}
+    update: dict[str, object] = {}  # the sections (keywords: a field, not the method)
     extra = float(getattr(settings.raceline, key))
     if extra != 0.0:
         o = settings.raceline
-        update["raceline"] = o.model_copy(
-            update={"min_time_margin_m": min(o.min_time_margin_m + extra, 1.0)})
+        update.update(raceline=o.model_copy(
+            update={"min_time_margin_m": min(o.min_time_margin_m + extra, 1.0)}))
     line = settings.cimpcc_line
     gain = float(getattr(line, POSE_SPEED_GAINS[pose]))
     if gain != line.speed_estimate_gain:
-        update["cimpcc_line"] = line.model_copy(update={"speed_estimate_gain": gain})
-    # the sections, not the method
+        update.update(cimpcc_line=line.model_copy(update={"speed_estimate_gain": gain}))
     return settings.model_copy(update=update) if update else settings
 
 
