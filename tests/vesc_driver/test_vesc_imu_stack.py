@@ -1,6 +1,11 @@
 """The stack on the VESC's IMU: simulator (``actuation = "fake_vesc"``), vesc_driver polling
 GET_IMU_DATA, localization bridge and planner as REAL processes; a lap is raced.
 
+The hub is its own process (``services.router``, as with ``racestack up`` or services started
+one by one), not this test's: the test's Python callbacks then cannot hold up the stack's
+traffic when pytest's process is slow (a CI run once saw the poses reach the bridge more than
+``invalid_after_s`` late for a minute, the car braked on invalid state and no lap came).
+
 The simulator's own IMU is slowed to one sample per 100 s, so the ``vehicle/imu`` the bridge
 fuses is the vesc_driver's (the fake VESC answers with the simulator's truth, or its
 kinematic estimate of the commanded motion when the simulator does not pass the truth). The
@@ -24,6 +29,7 @@ from shared.bus import Bus
 from shared.config import load_config
 from shared.messages import Imu, LapEvent, SimControl, SimTruth, State
 from shared.net import free_loopback_port
+from shared.service_shell import endpoint_reachable, hub_endpoints
 from shared.vesc.fake_pty import pty_available
 
 pytestmark = [
@@ -31,6 +37,9 @@ pytestmark = [
     pytest.mark.skipif(not pty_available(), reason="needs pseudo-terminals (os.openpty)"),
 ]
 SERVICES = ("simulator", "vesc_driver", "localization_bridge", "planner")
+#: The hub process (``services.router``) and how long it may take to listen [s].
+HUB = "router"
+HUB_TIMEOUT_S = 60.0
 START_TIMEOUT_S = 240.0  # the planner may compile its problem first (minutes on 2 busy cores)
 LAP_TIMEOUT_S = 90.0
 #: Hard limit of this test [s]: replaces the 30 s of ``conftest._vesc_deadline`` (a stack
@@ -69,6 +78,7 @@ def test_a_lap_with_the_bridge_on_the_vesc_imu(tmp_path: Path) -> None:
     imus: list[Imu] = []
     states: list[State] = []
     lags: list[float] = []  # wall clock at receipt - the simulator's stamp [s]
+    state_ages: list[float] = []  # wall clock at receipt - the state's stamp [s]
 
     def keep(into: list, m: object) -> None:
         with lock:
@@ -82,11 +92,32 @@ def test_a_lap_with_the_bridge_on_the_vesc_imu(tmp_path: Path) -> None:
             if c.log_path and c.log_path.exists()
         )
 
-    with Bus(cfg.bus, "test", listen_default=True, mode="router") as bus:
+    def lateness() -> str:
+        """The newest 500 stamps' lateness at this test's receipt (the first thing a
+        failure says: the rest of its message may be cut by a log)."""
+        with lock:
+            sim, st = lags[-500:], state_ages[-500:]
+        return (f"sim/truth late by up to {max(sim, default=float('nan')):.3f} s, "
+                f"state by up to {max(st, default=float('nan')):.3f} s (newest 500)")
+
+    def on_state(m: State) -> None:
+        keep(states, m)
+        keep(state_ages, time.time() - m.stamp_s)
+
+    hub = sup.start(HUB, service_argv(HUB, str(toml)))
+    tcp = hub_endpoints(cfg.bus, "test")
+    try:
+        listening = sup.wait_until(lambda: all(endpoint_reachable(e) for e in tcp),
+                                   HUB_TIMEOUT_S)
+        assert listening, f"the hub (pid {hub.pid}) did not listen on {tcp}\n{output()}"
+    except BaseException:
+        sup.stop_all(grace_s=5.0)
+        raise
+    with Bus(cfg.bus, "test", announce=False) as bus:
         try:
             bus.subscribe(bus.keys.lap, LapEvent, callback=lambda m: keep(laps, m))
             bus.subscribe(bus.keys.imu, Imu, callback=lambda m: keep(imus, m))
-            bus.subscribe(bus.keys.state, State, callback=lambda m: keep(states, m))
+            bus.subscribe(bus.keys.state, State, callback=on_state)
             bus.subscribe(
                 bus.keys.sim_truth, SimTruth, callback=lambda m: keep(lags, time.time() - m.stamp_s)
             )
@@ -103,12 +134,8 @@ def test_a_lap_with_the_bridge_on_the_vesc_imu(tmp_path: Path) -> None:
                     return any(e.kind == "lap" for e in laps)
 
             if not sup.wait_until(lapped, LAP_TIMEOUT_S):
-                with lock:
-                    lag = max(lags[-500:], default=float("nan"))
-                pytest.fail(
-                    f"no lap in {LAP_TIMEOUT_S:.0f} s (the simulator's stamps lag the wall clock "
-                    f"by up to {lag:.2f} s: a loaded machine?): {laps}\n{output()}"
-                )
+                pytest.fail(f"no lap in {LAP_TIMEOUT_S:.0f} s ({lateness()}: a loaded "
+                            f"machine?): {laps}\n{output()}")
             with lock:
                 lap = next(e for e in laps if e.kind == "lap")
                 n_imu, got_states = len(imus), list(states)
@@ -118,10 +145,10 @@ def test_a_lap_with_the_bridge_on_the_vesc_imu(tmp_path: Path) -> None:
             assert lap.lap_time_s is not None and lap.lap_time_s < 40.0
             # the IMU stream is the vesc_driver's (the simulator's is at 0.01 Hz)
             assert n_imu > 100 and turning, output()
-            assert got_states and got_states[-1].valid, output()
+            assert got_states and got_states[-1].valid, f"{lateness()}\n{output()}"
             first = next(i for i, s in enumerate(got_states) if s.valid)
             racing = got_states[first:]  # before the first pose the bridge says "not valid"
-            assert sum(s.valid for s in racing) > 0.9 * len(racing), output()
+            assert sum(s.valid for s in racing) > 0.9 * len(racing), f"{lateness()}\n{output()}"
         finally:
             codes = sup.stop_all(grace_s=5.0)
     assert all(c is not None for c in codes.values()), f"processes left running: {codes}"
