@@ -61,6 +61,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -97,20 +98,64 @@ OLD_SIM_CLOSE_LINE = re.compile(r"stopping \((\d+) real-time overruns, (\d+) ski
 PF_LOST = re.compile(r"rejected inputs: .*?\bpf_lost (\d+)")
 
 
+def _toml_value(v: Any) -> str:
+    """`v` (str, bool, int, float or a list of them) as a TOML value."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string is a JSON string for these
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} into the soak's TOML")
+
+
+def _toml_tables(table: dict[str, Any], prefix: str = "") -> str:
+    """`table` (nested dicts of values) as TOML tables, a header per dict with values."""
+    values = {k: v for k, v in table.items() if not isinstance(v, dict)}
+    text = ""
+    if values and prefix:
+        text += f"[{prefix}]\n" + "".join(f"{k} = {_toml_value(v)}\n"
+                                           for k, v in values.items()) + "\n"
+    for k, v in table.items():
+        if isinstance(v, dict):
+            text += _toml_tables(v, f"{prefix}.{k}" if prefix else k)
+    return text
+
+
+def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    """`base` with `extra` laid over it, table by table (`extra`'s values win)."""
+    out = dict(base)
+    for k, v in extra.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) \
+            else v
+    return out
+
+
 def soak_config(
     path: Path, port: int, track: str, segment_s: float, lidar_hz: float,
     pose_source: str = "external", extra: str = "",
 ) -> Path:
     """A TOML of the soak: its own car name and hub port, the track, the segment length,
-    the simulated lidar's rate [Hz], the bridge's pose source, then `extra` (TOML)."""
-    path.write_text(
-        f'[track]\nsource = "{track}"\n\n'
-        f'[bus]\ncar = "soak{port}"\nlisten = ["tcp/127.0.0.1:{port}"]\n\n'
-        f"[telemetry]\nsegment_interval_s = {segment_s}\n\n"
-        f'[localization]\npose_source = "{pose_source}"\n\n'
-        f"[simulator.lidar]\nrate_hz = {lidar_hz}\n\n{extra}",
-        encoding="utf-8",
-    )
+    the simulated lidar's rate [Hz], the bridge's pose source, with `extra` (TOML) laid over
+    it table by table (so ``[telemetry]`` in `extra` adds to the soak's own ``[telemetry]``).
+
+    Raises:
+        ValueError: `extra` is not valid TOML.
+    """
+    base: dict[str, Any] = {
+        "track": {"source": track},
+        "bus": {"car": f"soak{port}", "listen": [f"tcp/127.0.0.1:{port}"]},
+        "telemetry": {"segment_interval_s": segment_s},
+        "localization": {"pose_source": pose_source},
+        "simulator": {"lidar": {"rate_hz": lidar_hz}},
+    }
+    try:
+        over = tomllib.loads(extra)
+    except tomllib.TOMLDecodeError as e:
+        raise ValueError(f"--config-extra is not valid TOML: {e}") from None
+    path.write_text(_toml_tables(_merge(base, over)), encoding="utf-8")
     return path
 
 
@@ -261,8 +306,12 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     port = free_loopback_port()
     lidar_hz = args.lidar_hz or (40.0 if args.pose_source == "lidar" else 10.0)
-    toml = soak_config(out / "soak.toml", port, args.track, args.segment_s, lidar_hz,
-                       args.pose_source, args.config_extra.replace("\\n", "\n"))
+    try:
+        toml = soak_config(out / "soak.toml", port, args.track, args.segment_s, lidar_hz,
+                           args.pose_source, args.config_extra.replace("\\n", "\n"))
+    except ValueError as e:
+        print(f"soak: {e}", file=sys.stderr)
+        return 2
     run_dir = out / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
     for name in ("XDG_CONFIG_HOME", "XDG_DATA_HOME"):  # rerun's analytics stay off and here
