@@ -129,6 +129,9 @@ class HeadlessViewer:
             start_new_session=True)  # `python -m rerun` runs the viewer binary as its child:
         # stop() ends the whole group, or the binary outlives its wrapper
         self.client: Any = None
+        self.samples: list[float] = []
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
         deadline = time.monotonic() + START_TIMEOUT_S
         while self.client is None and time.monotonic() < deadline and self.proc.poll() is None:
             try:
@@ -139,10 +142,8 @@ class HeadlessViewer:
                 time.sleep(0.5)
         if self.client is None:
             self.stop()
-            raise RuntimeError(f"no headless viewer (see {out / 'viewer.log'})")
-        self.samples: list[float] = []
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+            raise RuntimeError(f"no headless viewer (see {out / 'viewer.log'}; it needs a "
+                               "Vulkan driver, e.g. Debian's mesa-vulkan-drivers)")
 
     def open(self, *urls: str, settle_s: float = 3.0) -> None:
         """Open files / a live stream URL and wait until they are loaded (+ `settle_s`)."""
