@@ -10,7 +10,7 @@ detector and tracker (``OpponentDetector``, ``OpponentTracker``).
 
 from services.localization_bridge.estimator import Estimate, FusedEstimator, Verdict
 from services.localization_bridge.lidar_pose import LidarPoseSource, ScanPose, start_pose
-from services.localization_bridge.opponents import OpponentDetector, OpponentTracker
+from services.localization_bridge.opponents import OpponentDetector, OpponentTracker, ScanView
 from services.localization_bridge.particle_filter import ParticleFilter, PfEstimate
 from services.localization_bridge.scan_check import ScanLayout, scan_problem
 
@@ -24,6 +24,7 @@ __all__ = [
     "PfEstimate",
     "ScanLayout",
     "ScanPose",
+    "ScanView",
     "Verdict",
     "scan_problem",
     "start_pose",

@@ -24,6 +24,7 @@ from services.localization_bridge.opponents import (
     DetectorParams,
     OpponentDetector,
     OpponentTracker,
+    ScanView,
     TrackerParams,
 )
 from services.localization_bridge.opponents import OpponentTrack as OpponentTrack_
@@ -95,7 +96,8 @@ class OpponentFeed:
         )
         self.tracker = OpponentTracker(
             TrackerParams(accel_std_mps2=s.accel_std_mps2, meas_std_m=s.meas_std_m,
-                          confirm_hits=s.confirm_hits, max_misses=s.max_misses)
+                          confirm_hits=s.confirm_hits, max_misses=s.max_misses,
+                          max_coast_s=s.max_coast_s)
         )
         self._born: dict[int, float] = {}
 
@@ -131,7 +133,9 @@ class OpponentFeed:
         sensor = self.sensor_pose(*rear_axle_pose)
         found = self.detector.detect(ranges_m, angle_min_rad, angle_increment_rad,
                                      self.settings.max_range_m, sensor)
-        confirmed = self.tracker.update(t_s, [(d.x_m, d.y_m, d.yaw_rad) for d in found])
+        view = ScanView(ranges_m, angle_min_rad, angle_increment_rad,
+                        self.settings.max_range_m, sensor)
+        confirmed = self.tracker.update(t_s, [(d.x_m, d.y_m, d.yaw_rad) for d in found], view)
         alive = {tr.track_id for tr in self.tracker.tracks}
         for k in [k for k in self._born if k not in alive]:
             del self._born[k]

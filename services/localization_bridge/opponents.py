@@ -29,7 +29,21 @@ Tracking (``OpponentTracker``): a constant-velocity Kalman filter per track, sta
 box heading adds the pseudo-measurement "no velocity across the car" (``update``); a detection
 without a track starts a tentative one (confirmed after ``confirm_hits`` hits); a track is
 dropped after ``max_misses`` scans in a row without a detection (coasting through occlusion
-keeps its id).
+keeps its id). Two cars cannot overlap: a detection left over by the gated association
+whose centre lies within ``merge_m`` (a car's width) of a track's is that car, not a new one
+(it corrects that track when the track had no detection this scan, and is dropped as a
+duplicate when it had: one car's points split into two clusters), and of two tracks that
+come within ``merge_m`` of each other the younger is dropped (the older id is kept). (Seen
+from the side within 0.5 m, the box fit drifts 0.1-0.2 m and the gate, a few centimetres at
+this noise, let a second track be born beside the first: the id switches of an overtake.)
+
+What the scan could not see is not a miss (``ScanView``): a confirmed track whose predicted
+centre lies outside the lidar's fan (behind the car: 270 deg sensors see nothing in the rear
+90 deg), beyond ``max_range_m``, or behind a nearer return on its beam (occluded by a wall or
+another car, by more than half a car length) coasts without counting misses, for at most
+``max_coast_s`` since its last detection; seen again within the gate it keeps its id. (Before,
+a car the ego had just passed left the field of view, its track died after 8 scans and was
+born again, unconfirmed for 3 scans, as the ego merged back in front of it.)
 """
 
 from __future__ import annotations
@@ -52,6 +66,7 @@ __all__ = [
     "OpponentDetector",
     "OpponentTrack",
     "OpponentTracker",
+    "ScanView",
     "TrackerParams",
     "fit_car_box",
 ]
@@ -286,15 +301,62 @@ class OpponentDetector:
 
     def _cut(self, r: np.ndarray, end: int, beside: int, valid: np.ndarray) -> bool:
         """Whether a cluster's end beam `end` is not the car's end: the beam `beside` it
-        returns nearer, ``cluster_gap_m`` or more in front (an occluder) [beam indices]."""
-        if beside < 0 or beside >= r.size or not valid[beside]:
+        returns nearer, ``cluster_gap_m`` or more in front (an occluder), or there is no
+        beam beside it: the scan's fan ends there and the car may go on beyond it (beside
+        and behind the sensor, the rear of a car just passed is out of the fan) [beam
+        indices]."""
+        if beside < 0 or beside >= r.size:
+            return True
+        if not valid[beside]:
             return False
         return bool(r[beside] < r[end] - self.params.cluster_gap_m)
 
 
 @dataclass(frozen=True)
+class ScanView:
+    """What one scan could see (module docstring): the sensor's pose and the scan's beams.
+
+    Args:
+        ranges_m: (K,) ranges [m] (non-finite, non-positive or at or beyond `range_max_m`:
+            no return); angle_min_rad, angle_increment_rad: the beams [rad];
+        range_max_m: the farthest return that counts [m];
+        sensor_pose: (x m, y m, yaw rad) of the sensor in the map frame;
+        occlusion_m: a point is hidden when its beam returns nearer than its distance less
+            this [m] (default: half an F1TENTH car's length).
+    """
+
+    ranges_m: np.ndarray
+    angle_min_rad: float
+    angle_increment_rad: float
+    range_max_m: float
+    sensor_pose: tuple[float, float, float]
+    occlusion_m: float = 0.5 * CAR.length_m
+
+    def sees(self, x_m: float, y_m: float) -> bool:
+        """Whether a car centred at (`x_m`, `y_m`) [m] was in view: inside the fan and the
+        range and not behind a nearer return on the beam towards it."""
+        x0, y0, yaw0 = self.sensor_pose
+        d = math.hypot(x_m - x0, y_m - y0)
+        if not d < self.range_max_m:
+            return False
+        r = np.asarray(self.ranges_m, dtype=float).ravel()
+        bearing = math.remainder(math.atan2(y_m - y0, x_m - x0) - yaw0, 2.0 * math.pi)
+        k = round((bearing - self.angle_min_rad) / self.angle_increment_rad)
+        if k < 0 or k >= r.size:  # wrap: a fan that ends past +pi starts below -pi
+            k = round((bearing + 2.0 * math.pi - self.angle_min_rad) / self.angle_increment_rad)
+            if k < 0 or k >= r.size:
+                return False
+        hit = float(r[k])
+        if math.isfinite(hit) and 0.0 < hit < self.range_max_m:
+            return hit >= d - self.occlusion_m
+        return True  # no return on that beam: nothing nearer hid it
+
+
+@dataclass(frozen=True)
 class TrackerParams:
-    """Settings of the tracker (module docstring)."""
+    """Settings of the tracker (module docstring); ``max_coast_s`` [s]: the longest a
+    confirmed track the scans cannot see coasts since its last detection; ``merge_m`` [m]:
+    closer than this, a detection and a track, or two tracks, are one car."""
 
     accel_std_mps2: float = 8.0
     meas_std_m: float = 0.02
@@ -303,6 +365,8 @@ class TrackerParams:
     lateral_speed_std_mps: float = 0.15
     confirm_hits: int = 3
     max_misses: int = 8
+    max_coast_s: float = 1.0
+    merge_m: float = CAR.width_m
 
 
 @dataclass
@@ -314,7 +378,9 @@ class OpponentTrack:
         x: (4,) state [x m, y m, vx m/s, vy m/s] (map frame).
         P: (4, 4) its covariance.
         t_s: time of the state [s].
-        hits: detections associated so far; misses: scans in a row without one.
+        hits: detections associated so far; misses: scans in a row without one that
+            could have seen it.
+        seen_t_s: time of its last detection [s].
     """
 
     track_id: int
@@ -324,6 +390,7 @@ class OpponentTrack:
     hits: int = 1
     misses: int = 0
     confirmed: bool = False
+    seen_t_s: float = -math.inf
 
     @property
     def position(self) -> tuple[float, float]:
@@ -348,6 +415,10 @@ class OpponentTracker:
         self.tracks: list[OpponentTrack] = []
         #: detections refused so far (a non-finite value or fewer than two).
         self.dropped = 0
+        #: detections dropped as a second cluster of a car already detected this scan, and
+        #: tracks dropped as a younger duplicate of an older one (``merge_m``).
+        self.duplicates = 0
+        self.merged = 0
         self._next_id = 1
         self._H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
         self._R = np.eye(2) * params.meas_std_m**2
@@ -366,7 +437,12 @@ class OpponentTracker:
         tr.P = F @ tr.P @ F.T + Q
         tr.t_s = t_s
 
-    def update(self, t_s: float, detections: list[tuple[float, ...]]) -> list[OpponentTrack]:
+    def update(
+        self,
+        t_s: float,
+        detections: list[tuple[float, ...]],
+        view: ScanView | None = None,
+    ) -> list[OpponentTrack]:
         """Advance every track to `t_s` [s] and take this scan's detections.
 
         Args:
@@ -376,6 +452,8 @@ class OpponentTracker:
                 ``lateral_speed_std_mps`` (a car moves along its axis: the pseudo-measurement
                 that keeps the constant-velocity model from lagging through bends).
                 Detections with a non-finite value are dropped and counted (``dropped``).
+            view: what the scan could see (None: everything): a confirmed track it could
+                not see counts no miss, for at most ``max_coast_s`` since its detection.
 
         Returns:
             the confirmed tracks after the update.
@@ -407,19 +485,57 @@ class OpponentTracker:
             used_t.add(i)
             used_d.add(j)
             self._correct(self.tracks[i], z[j], yaws[j])
+        for j in range(n_d):  # left over: within a car's width of a track, that car
+            if j in used_d or not self.tracks:
+                continue
+            gaps = [math.hypot(z[j, 0] - tr.x[0], z[j, 1] - tr.x[1]) for tr in self.tracks]
+            i = int(np.argmin(gaps))
+            if gaps[i] >= p.merge_m:
+                continue
+            used_d.add(j)
+            if i in used_t:
+                self.duplicates += 1
+            else:
+                used_t.add(i)
+                self._correct(self.tracks[i], z[j], yaws[j])
+        kept = []
         for i, tr in enumerate(self.tracks):
             if i not in used_t:
-                tr.misses += 1
-        self.tracks = [tr for tr in self.tracks if tr.misses <= p.max_misses]
+                hidden = tr.confirmed and view is not None and not view.sees(*tr.position)
+                if hidden and t_s - tr.seen_t_s > p.max_coast_s:
+                    continue  # coasted out of sight for too long
+                if not hidden:
+                    tr.misses += 1
+            if tr.misses <= p.max_misses:
+                kept.append(tr)
+        self.tracks = self._coalesce(kept)
         for j in range(n_d):
             if j not in used_d:
                 P0 = np.diag([p.meas_std_m**2] * 2 + [p.init_speed_std_mps**2] * 2)
                 x0 = np.array([z[j, 0], z[j, 1], 0.0, 0.0])
-                self.tracks.append(OpponentTrack(self._next_id, x0, P0, float(t_s)))
+                self.tracks.append(OpponentTrack(self._next_id, x0, P0, float(t_s),
+                                                 seen_t_s=float(t_s)))
                 self._next_id += 1
         for tr in self.tracks:
             tr.confirmed = tr.confirmed or tr.hits >= p.confirm_hits
         return [tr for tr in self.tracks if tr.confirmed]
+
+    def _coalesce(self, tracks: list[OpponentTrack]) -> list[OpponentTrack]:
+        """`tracks` without the younger of any two within ``merge_m`` (counted in
+        ``merged``); the older keeps its id (tracks are in birth order)."""
+        out: list[OpponentTrack] = []
+        for tr in tracks:
+            if any(math.hypot(tr.x[0] - o.x[0], tr.x[1] - o.x[1]) < self.params.merge_m
+                   for o in out):
+                self.merged += 1
+                if tr.confirmed:  # the older one stands for it now
+                    for o in out:
+                        if math.hypot(tr.x[0] - o.x[0], tr.x[1] - o.x[1]) < self.params.merge_m:
+                            o.confirmed = True
+                            break
+                continue
+            out.append(tr)
+        return out
 
     def _correct(self, tr: OpponentTrack, z: np.ndarray, yaw: float | None = None) -> None:
         """Kalman correction by position `z` (2,) [m] and, with `yaw` [rad], the zero
@@ -437,3 +553,4 @@ class OpponentTracker:
         tr.P = ikh @ tr.P @ ikh.T + K @ R @ K.T
         tr.hits += 1
         tr.misses = 0
+        tr.seen_t_s = tr.t_s

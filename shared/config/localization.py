@@ -75,7 +75,11 @@ class OpponentSettings(Section):
         min_points: fewest points of a cluster that is a car.
         max_range_m: beams longer than this are ignored [m].
         confirm_hits: detections before a track is published.
-        max_misses: scans in a row without a detection before a track is dropped.
+        max_misses: scans in a row without a detection before a track is dropped (a scan
+            that could not see the track, outside its fan or range or hidden behind a nearer
+            return, counts none).
+        max_coast_s: the longest a confirmed track the scans cannot see is kept since its
+            last detection [s] (it keeps its id when it comes back into view).
         meas_std_m: position noise of a detection [m].
         accel_std_mps2: the tracker's white-acceleration noise [m/s^2].
         max_pose_age_s: no ``opponents`` from a scan when the fused pose is older than this
@@ -88,6 +92,7 @@ class OpponentSettings(Section):
     max_range_m: float = Field(10.0, gt=0.0, le=100.0, allow_inf_nan=False)
     confirm_hits: int = Field(3, ge=1, le=100)
     max_misses: int = Field(8, ge=0, le=1000)
+    max_coast_s: float = Field(1.0, ge=0.0, le=10.0, allow_inf_nan=False)
     meas_std_m: float = Field(0.02, gt=0.0, le=1.0, allow_inf_nan=False)
     accel_std_mps2: float = Field(8.0, gt=0.0, le=100.0, allow_inf_nan=False)
     max_pose_age_s: float = Field(0.25, gt=0.0, le=10.0, allow_inf_nan=False)
