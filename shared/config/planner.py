@@ -187,6 +187,23 @@ class RacelineSettings(Section):
         "its friction ellipse (room for the speed loop's corrections); no effect on other "
         "tyres",
     )
+    min_time_reserve_speed_mps: float | None = Field(
+        None, gt=0.0, le=20.0,
+        description="min_time, friction-limited tyres: above this speed [m/s] each axle keeps "
+        "a reserve of its friction ellipse for the tracker's corrections (the share of its "
+        "radius falls smoothly to min_time_reserve_fraction over min_time_reserve_width_mps); "
+        "None, or at or above v_max_mps: none (the line of before)",
+    )
+    min_time_reserve_fraction: float = Field(
+        0.9, ge=0.1, le=1.0,
+        description="min_time: the share of each axle's friction-ellipse radius the line uses "
+        "min_time_reserve_width_mps and more above min_time_reserve_speed_mps [1]",
+    )
+    min_time_reserve_width_mps: float = Field(
+        2.0, ge=0.01, le=20.0,
+        description="min_time: the speed range over which the reserve grows from none to "
+        "its full share [m/s]",
+    )
     a_lat_mps2: float = Field(
         5.5, gt=0.0, le=50.0, description="min_curvature: lateral acceleration limit [m/s^2]"
     )

@@ -221,10 +221,15 @@ def transcribe(
     path_u = ca.horzcat(u_tiled, inputs)
     n_path = (d + 1) * n
     tyres = m.tyres.map(n_path)(path_x, path_u)
-    if m.friction_limited:
+    if m.friction_limited and m.reserve is None:
         g_parts.append(ca.vec(tyres[0:2, :]))
         lbg.append(np.full(2 * n_path, -np.inf))
         ubg.append(np.full(2 * n_path, m.ellipse_use_max))
+    elif m.friction_limited:  # the high-speed reserve: the bound falls with the speed
+        bound = m.use_bound(path_x[V, :])
+        g_parts.append(ca.vec(tyres[0:2, :] - ca.vertcat(bound, bound)))
+        lbg.append(np.full(2 * n_path, -np.inf))
+        ubg.append(np.zeros(2 * n_path))
     if m.peak_slip_rad is not None:
         g_parts.append(ca.vec(tyres[2:4, :]))
         peak = np.tile(np.asarray(m.peak_slip_rad), n_path)
