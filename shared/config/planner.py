@@ -222,10 +222,11 @@ class RacelineSettings(Section):
         0.5, ge=0.0, le=10.0, description="tracker: steering per m of look-ahead error [rad/m]"
     )
     k_lateral_speed_mps: float | None = Field(
-        None, gt=0.0, le=20.0,
+        4.18, gt=0.0, le=20.0,
         description="tracker: above this planned speed [m/s] k_lateral falls as (v_k / "
         "v)^2 (the look-ahead feedback's heading gain grows with v^2; at 9-10 m/s the 20 Hz "
-        "loop weaved the car wall to wall); None: k_lateral at every speed",
+        "loop weaved the car wall to wall); the default is the paper's 4.18 m/s cap, so "
+        "every lap at or below it is k_lateral's; None: k_lateral at every speed",
     )
     lookahead_base_m: float = Field(0.0, ge=0.0, le=10.0, description="tracker: l_0 [m]")
     lookahead_time_s: float = Field(

@@ -230,3 +230,19 @@ def test_the_lateral_gain_falls_with_the_square_of_the_speed_above_its_speed() -
     assert TrackerGains(k_lateral_radpm=0.5).k_lateral_at(10.0) == 0.5
     o = RacelineSettings(k_lateral_speed_mps=6.0)
     assert tracker_gains(o).k_lateral_at(12.0) == pytest.approx(0.25 * o.k_lateral_radpm)
+
+
+def test_the_lateral_gain_schedule_is_on_by_default_at_the_papers_cap() -> None:
+    """``[planner.raceline]``'s default turns the schedule on at the paper's 4.18 m/s cap:
+    every lap at or below it keeps k_e (the bench regression), 10 m/s gets (4.18 / 10)^2 of
+    it (issue #21: the tracker weaved wall to wall at 9-10 m/s)."""
+    from shared.config.planner import RacelineSettings
+
+    o = RacelineSettings()
+    assert o.k_lateral_speed_mps == 4.18
+    g = tracker_gains(o)
+    assert g.k_lateral_at(4.18) == o.k_lateral_radpm
+    assert g.k_lateral_at(10.0) == pytest.approx(o.k_lateral_radpm * 0.4180**2)
+    assert tracker_gains(RacelineSettings(k_lateral_speed_mps=None)).k_lateral_at(10.0) == (
+        o.k_lateral_radpm
+    )
