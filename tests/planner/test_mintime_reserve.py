@@ -86,3 +86,53 @@ def test_bad_reserves_are_rejected() -> None:
                    {"reserve_width_mps": 0.0}, {"reserve_speed_mps": math.nan}):
         with pytest.raises(ValueError):
             MinTimeSettings(**kwargs)
+
+
+def test_the_reserves_margin_keeps_the_footprint_further_inside_at_speed() -> None:
+    """``reserve_margin_m``: R = 3 m, the tyres allow about 5.4 m/s, the reserve full from
+    2.5 m/s: the footprint keeps the margin plus 5 cm from the inner wall (not just the
+    margin, as the plain lap does)."""
+    track = circle_track(3.0, 0.3)
+    cfg = MinTimeSettings(v_max_mps=10.0, ds_m=0.2, reserve_speed_mps=2.0,
+                          reserve_width_mps=0.5, reserve_fraction=1.0, reserve_margin_m=0.05)
+    lap = solve_min_time(track, CAR, cfg)
+    assert lap.success and lap.v_mps.min() > 2.5
+    assert lap.min_clearance_m == pytest.approx(0.02 + 0.05, abs=3e-3)
+
+
+def test_the_reserves_steering_cost_is_in_the_objective_above_its_speed_only() -> None:
+    """``reserve_steering_weight_s`` k: the objective gains ``k h sum S(v) (sv /
+    sv_max)^2`` at the same decision vector; with every speed below ``reserve_speed_mps``
+    nothing."""
+    import casadi as ca
+
+    from services.planner.mintime.nlp import make_grid, transcribe
+    from services.planner.mintime.track import reference_line
+
+    track = circle_track(3.0, 0.3)
+    grid = make_grid(reference_line(track), CAR, 0.5)
+    m = spatial_model(CAR)
+    plain = transcribe(m, CAR, grid, 10.0, 1.0, 0.02)
+    costly = transcribe(m, CAR, grid, 10.0, 1.0, 0.02, (2.0, 0.5, 0.1, 0.0))
+    n_z = plain.nlp["x"].shape[0]
+    rng = np.random.default_rng(0)
+    z = rng.uniform(0.2, 0.8, n_z)  # scaled: speeds 2-8 m/s, some steering rate everywhere
+    f_plain = ca.Function("f", [plain.nlp["x"]], [plain.nlp["f"]])
+    f_costly = ca.Function("f", [costly.nlp["x"]], [costly.nlp["f"]])
+    assert float(f_costly(z)) > float(f_plain(z))
+    slow = transcribe(m, CAR, grid, 10.0, 1.0, 0.02, (20.0, 0.5, 0.1, 0.0))
+    f_slow = ca.Function("f", [slow.nlp["x"]], [slow.nlp["f"]])
+    assert float(f_slow(z)) == pytest.approx(float(f_plain(z)), rel=1e-12)
+
+
+def test_the_default_reserve_acts_at_ten_metres_per_second_only() -> None:
+    """``[planner.raceline]``'s default reserve starts at the paper's 4.18 m/s cap: capped
+    there, the raceline's line is the line of before (its cache key); at --v-max 10 it is
+    on, with its steering cost and margin."""
+    o = RacelineSettings()
+    assert o.min_time_reserve_speed_mps == 4.18
+    assert not min_time_settings(o).reserve_active
+    fast = min_time_settings(o.model_copy(update={"v_max_mps": 10.0}))
+    assert fast.reserve_active
+    assert (fast.reserve_fraction, fast.reserve_steering_weight_s, fast.reserve_margin_m) == (
+        0.9, 0.1, 0.1)

@@ -110,9 +110,18 @@ class SpatialModel:
         if self.reserve is None:
             return self.ellipse_use_max
         v_r, width, f_r = self.reserve
-        x = ca.fmin(ca.fmax((v_mps - v_r) / width, 0.0), 1.0)
-        ramp = x * x * (3.0 - 2.0 * x)
+        ramp = reserve_ramp(v_mps, v_r, width)
         return self.ellipse_use_max * (1.0 - (1.0 - f_r * f_r) * ramp)
+
+
+def reserve_ramp(
+    v_mps: ca.MX | ca.SX | float, v_r_mps: float, width_mps: float
+) -> ca.MX | ca.SX | float:
+    """The high-speed reserve's weight [-] at speed `v_mps` [m/s]: the smoothstep ``3 x^2 -
+    2 x^3`` of ``x = (v - v_r) / w`` clipped to [0, 1] (0 up to `v_r_mps`, 1 from `v_r_mps` +
+    `width_mps` on; C1 in v)."""
+    x = ca.fmin(ca.fmax((v_mps - v_r_mps) / width_mps, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 def corner_offset(n: ca.SX, xi: ca.SX, kappa: ca.SX, cx: float, cy: float) -> ca.SX:

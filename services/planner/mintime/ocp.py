@@ -123,6 +123,12 @@ class MinTimeSettings:
             ``reserve_width_mps`` and more above ``reserve_speed_mps`` [-].
         reserve_width_mps: the speed range [m/s] over which the share falls from 1 to
             ``reserve_fraction`` (a smoothstep, so the constraint stays smooth in ``v``).
+        reserve_steering_weight_s: with the reserve, a cost [s] on the steering rate,
+            ``k h sum S(v) (sv / sv_max)^2`` (``S`` the same smoothstep): a line the 20 Hz
+            tracker can steer (without it the lap flicks the wheels at the rate limit for
+            0.1 s while braking at 9-10 m/s, and the car spins); 0: none.
+        reserve_margin_m: with the reserve, the footprint keeps ``m_r S(v)`` [m] more
+            margin (the tracking error's tube grows with the speed); 0: none.
     """
 
     v_max_mps: float = 4.18
@@ -136,6 +142,8 @@ class MinTimeSettings:
     reserve_speed_mps: float | None = None
     reserve_fraction: float = 0.9
     reserve_width_mps: float = 2.0
+    reserve_steering_weight_s: float = 0.0
+    reserve_margin_m: float = 0.0
 
     @property
     def reserve_active(self) -> bool:
@@ -154,6 +162,8 @@ class MinTimeSettings:
             ("ellipse_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),
             ("reserve_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),
             ("reserve_width_mps", lambda v: 0.01 <= v <= 50.0, "in [0.01, 50] m/s"),
+            ("reserve_steering_weight_s", lambda v: 0.0 <= v <= 10.0, "in [0, 10] s"),
+            ("reserve_margin_m", lambda v: 0.0 <= v <= 0.5, "in [0, 0.5] m"),
         )
         if self.reserve_speed_mps is not None:
             checks += (("reserve_speed_mps", lambda v: 0.0 < v <= 100.0, "in (0, 100] m/s"),)
@@ -283,7 +293,14 @@ def solve_min_time(
         else None
     )
     model = spatial_model(vehicle, cfg.slip_fraction, cfg.ellipse_fraction, reserve)
-    tr = transcribe(model, vehicle, grid, cfg.v_max_mps, cfg.v_min_mps, cfg.margin_m)
+    steering = (
+        (cfg.reserve_speed_mps, cfg.reserve_width_mps, cfg.reserve_steering_weight_s,
+         cfg.reserve_margin_m)
+        if cfg.reserve_active
+        and (cfg.reserve_steering_weight_s > 0.0 or cfg.reserve_margin_m > 0.0)
+        else None
+    )
+    tr = transcribe(model, vehicle, grid, cfg.v_max_mps, cfg.v_min_mps, cfg.margin_m, steering)
     x0 = tr.pack(*initial_guess(grid, vehicle, model, cfg.v_max_mps, cfg.v_min_mps))
     solver = ca.nlpsol("mintime", "ipopt", tr.nlp, ipopt_options(cfg))
     sol = solver(x0=x0, lbx=tr.lbx, ubx=tr.ubx, lbg=tr.lbg, ubg=tr.ubg)

@@ -96,6 +96,8 @@ def min_time_settings(
         reserve_speed_mps=settings.min_time_reserve_speed_mps,
         reserve_fraction=settings.min_time_reserve_fraction,
         reserve_width_mps=settings.min_time_reserve_width_mps,
+        reserve_steering_weight_s=settings.min_time_reserve_steering_weight_s,
+        reserve_margin_m=settings.min_time_reserve_margin_m,
     )
 
 

@@ -63,7 +63,8 @@ KEY_FREE_DEFAULTS: dict[str, object] = {"slip_fraction": 1.0, "ellipse_fraction"
 #: The high-speed reserve's settings: in the key only when the reserve acts
 #: (``MinTimeSettings.reserve_active``, a friction-limited tyre), so every lap whose top speed
 #: is at or below its speed (the 4.18 m/s cap's) keeps its key.
-RESERVE_FIELDS = ("reserve_speed_mps", "reserve_fraction", "reserve_width_mps")
+RESERVE_FIELDS = ("reserve_speed_mps", "reserve_fraction", "reserve_width_mps",
+                  "reserve_steering_weight_s", "reserve_margin_m")
 
 
 def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings) -> str:
