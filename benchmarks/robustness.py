@@ -4,6 +4,7 @@
     python -m benchmarks.robustness --out runs/robust        # the whole matrix
     python -m benchmarks.robustness --tracks f1tenth --v-max 10   # the F1TENTH maps uncapped
     python -m benchmarks.robustness --methods cimpcc,raceline --cars default --poses truth
+    python -m benchmarks.robustness --tracks Oschersleben --v-max 10 --config try.toml
 
 The matrix (``--tracks``, ``--cars``, ``--poses`` narrow it):
 
@@ -39,7 +40,9 @@ The cap: the configuration's (``[planner.cimpcc] v_up_mps[0]``, 4.18 m/s) unless
 sets every method's: ``[planner.cimpcc] v_up_mps`` (the tuner's pair, v_l = 1.1 v_p),
 ``[planner.cimpcc_line] v_max_mps`` and ``[planner.raceline] v_max_mps`` (``cap_overlay``);
 the limit is then solved at that top speed too. MPCC's fixed speed reference is no cap and
-stays. ``--min-time-ds`` puts the limit's and the raceline's minimum-time laps on a coarser
+stays. ``--config FILE`` lays a TOML file's tables over every car's (``config_for``: e.g.
+``[planner.raceline]`` settings to try; the laps it changes are solved and cached like the
+others). ``--min-time-ds`` puts the limit's and the raceline's minimum-time laps on a coarser
 grid (``[planner.raceline] ds_m``; the 260-460 m F1TENTH maps); cimpcc-line's line keeps 0.1 m.
 
 Two phases: first every minimum-time lap the cells read (each car's limit and the planners'
@@ -63,6 +66,7 @@ import multiprocessing as mp
 import os
 import sys
 import time
+import tomllib
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -200,12 +204,24 @@ def grid_overlay(ds_m: float | None) -> dict[str, Any]:
     return {"planner": {METHODS[RACELINE].section: {"ds_m": ds_m}}}
 
 
-def config_for(car: str, v_max_mps: float | None = None, ds_m: float | None = None
-               ) -> RacestackConfig:
+def config_for(car: str, v_max_mps: float | None = None, ds_m: float | None = None,
+               extra: dict[str, Any] | None = None) -> RacestackConfig:
     """The validated configuration of `car` (``CARS``) at cap `v_max_mps` (None: 4.18),
-    the raceline's line on grid `ds_m` (None: its own)."""
+    the raceline's line on grid `ds_m` (None: its own), with the tables `extra` (``--config``,
+    e.g. ``[planner.raceline]`` settings) over all of them."""
     tables = _merge(_merge(CARS[car].tables, cap_overlay(v_max_mps)), grid_overlay(ds_m))
-    return config_from_dict(tables)
+    return config_from_dict(_merge(tables, extra or {}))
+
+
+def load_overlay(path: str | Path) -> str:
+    """The tables of the TOML file at `path` (``--config``) as canonical JSON (``Matrix.
+    overlay``), validated on the default car (BenchError on a wrong file)."""
+    try:
+        tables = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        config_for("default", extra=tables)
+    except (OSError, tomllib.TOMLDecodeError, ValueError) as exc:
+        raise BenchError(f"--config {path}: {exc}") from None
+    return json.dumps(tables, sort_keys=True)
 
 
 @dataclass(frozen=True)
@@ -233,6 +249,13 @@ class Matrix:
     laps: int = 2
     v_max_mps: float | None = None
     ds_m: float | None = None
+    #: ``--config``'s tables as JSON ("": none), over every car's (``config_for``)
+    overlay: str = ""
+
+    @property
+    def extra(self) -> dict[str, Any]:
+        """The ``--config`` tables ({} for none)."""
+        return json.loads(self.overlay) if self.overlay else {}
 
     def cells(self) -> list[Cell]:
         """Every cell, track-major (the same track and car next to each other)."""
@@ -317,7 +340,7 @@ def lap_tasks(matrix: Matrix) -> list[LapTask]:
     method's line for the planners' car, the longest tracks first."""
     tasks: dict[str, LapTask] = {}
     for car in matrix.cars:
-        cfg = config_for(car, matrix.v_max_mps, matrix.ds_m)
+        cfg = config_for(car, matrix.v_max_mps, matrix.ds_m, matrix.extra)
         wanted = [("limit", *limit_request(cfg.planner, cfg.simulator.vehicle, matrix.ds_m))]
         for pose in matrix.poses:  # the pose source's margin (``for_pose_source``)
             planner = for_pose_source(cfg.planner, pose)
@@ -357,17 +380,18 @@ def solve_lap(task: LapTask) -> dict[str, Any]:
 
 # -------------------------------------------------------------------- phase 2: the cells
 #: Per worker: the track, configuration, planner pool and limit of the last (track, car)s.
-_SETUPS: dict[tuple[str, str, float | None, float | None],
+_SETUPS: dict[tuple[str, str, float | None, float | None, str],
               tuple[Track, RacestackConfig, PlannerPool, dict | None, str, float]] = {}
 
 
-def _setup(track_spec: str, car: str, v_max: float | None, ds_m: float | None = None):
-    key = (track_spec, car, v_max, ds_m)
+def _setup(track_spec: str, car: str, v_max: float | None, ds_m: float | None = None,
+           overlay: str = ""):
+    key = (track_spec, car, v_max, ds_m, overlay)
     if key not in _SETUPS:
         if len(_SETUPS) >= 4:
             _SETUPS.pop(next(iter(_SETUPS)))
         track = _track(track_spec)
-        cfg = config_for(car, v_max, ds_m)
+        cfg = config_for(car, v_max, ds_m, json.loads(overlay) if overlay else None)
         said = io.StringIO()
         with contextlib.redirect_stderr(said):
             ref = min_time_reference(track, cfg, ds_m=ds_m)
@@ -396,7 +420,7 @@ def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
     """Race every method of `matrix` in `cell`; the cell's record (JSON-ready)."""
     t0 = time.perf_counter()
     track, cfg, pool, ref, note, peak = _setup(cell.track, cell.car, matrix.v_max_mps,
-                                               matrix.ds_m)
+                                               matrix.ds_m, matrix.overlay)
     opts = LoopOptions(laps=matrix.laps, estimator=cell.pose, localization=cfg.localization)
     methods: dict[str, Any] = {}
     for name in matrix.methods:
@@ -682,10 +706,11 @@ def report(cells: list[dict[str, Any]], matrix: Matrix, timings: dict[str, float
     kinds = wall_by_kind(cells)
     cap = _fmt(matrix.v_max_mps, "g", "the configuration's (4.18 m/s)")
     grid = "" if matrix.ds_m is None else f", minimum-time grid {matrix.ds_m:g} m"
+    over = "" if not matrix.overlay else f", --config {matrix.overlay}"
     lines = [
         f"robustness matrix: {len(matrix.tracks)} tracks x {len(matrix.cars)} cars x "
         f"{len(matrix.poses)} poses, methods {', '.join(matrix.methods)}, {matrix.laps} flying "
-        f"laps, cap {cap}{grid}",
+        f"laps, cap {cap}{grid}{over}",
         "cars: " + "; ".join(f"{c} = {CARS[c].summary}" for c in matrix.cars),
         "",
         format_table(cells, matrix.methods),
@@ -830,6 +855,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "(default the configuration's, 0.1; e.g. 0.25 on the 260-460 m F1TENTH "
                     "maps, where a 0.1 m grid takes minutes per lap; cimpcc-line's line keeps "
                     "0.1)")
+    ap.add_argument("--config", default=None,
+                    help="a TOML file of configuration tables laid over every car's (e.g. "
+                    "[planner.raceline] settings; default none)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--out", default=None, help="output folder (default runs/robust-<time>)")
     ap.add_argument("--resume", action="store_true",
@@ -860,8 +888,10 @@ def matrix_from_args(args: argparse.Namespace) -> Matrix:
         raise BenchError("--min-time-ds must be in [0.02, 1] m")
     for spec in tracks:
         load_track(spec)  # a wrong track fails here, before anything runs
+    config = getattr(args, "config", None)
+    overlay = "" if config is None else load_overlay(config)
     return Matrix(tuple(tracks), tuple(cars), tuple(poses), tuple(methods), args.laps,
-                  args.v_max, ds)
+                  args.v_max, ds, overlay)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -187,6 +187,39 @@ class RacelineSettings(Section):
         "its friction ellipse (room for the speed loop's corrections); no effect on other "
         "tyres",
     )
+    min_time_reserve_speed_mps: float | None = Field(
+        4.18, gt=0.0, le=20.0,
+        description="min_time, friction-limited tyres: above this speed [m/s] each axle keeps "
+        "a reserve of its friction ellipse for the tracker's corrections (the share of its "
+        "radius falls smoothly to min_time_reserve_fraction over min_time_reserve_width_mps), "
+        "with min_time_reserve_steering_weight_s and min_time_reserve_margin_m; the default "
+        "is the paper's 4.18 m/s cap, so every line capped there is the line (and cache key) "
+        "of before; None, or at or above v_max_mps: none (tuned on Oschersleben at "
+        "--v-max 10, issue 21)",
+    )
+    min_time_reserve_fraction: float = Field(
+        0.9, ge=0.1, le=1.0,
+        description="min_time: the share of each axle's friction-ellipse radius the line uses "
+        "min_time_reserve_width_mps and more above min_time_reserve_speed_mps [1]",
+    )
+    min_time_reserve_width_mps: float = Field(
+        2.0, ge=0.01, le=20.0,
+        description="min_time: the speed range over which the reserve grows from none to "
+        "its full share [m/s]",
+    )
+    min_time_reserve_steering_weight_s: float = Field(
+        0.1, ge=0.0, le=10.0,
+        description="min_time, with the reserve: a cost on the steering rate, k h sum "
+        "S(v) (sv / sv_max)^2 [s] (S the reserve's ramp): a line the 20 Hz tracker can steer "
+        "(unpenalised, the lap flicks the wheels at the rate limit for 0.1 s while braking "
+        "at 9-10 m/s); 0: none",
+    )
+    min_time_reserve_margin_m: float = Field(
+        0.1, ge=0.0, le=0.5,
+        description="min_time, with the reserve: the footprint keeps this much more margin "
+        "[m] at speed (times the reserve's ramp S(v): the tracking error's tube grows with "
+        "the speed); 0: none",
+    )
     a_lat_mps2: float = Field(
         5.5, gt=0.0, le=50.0, description="min_curvature: lateral acceleration limit [m/s^2]"
     )
@@ -205,10 +238,18 @@ class RacelineSettings(Section):
         0.5, ge=0.0, le=10.0, description="tracker: steering per m of look-ahead error [rad/m]"
     )
     k_lateral_speed_mps: float | None = Field(
-        None, gt=0.0, le=20.0,
+        4.18, gt=0.0, le=20.0,
         description="tracker: above this planned speed [m/s] k_lateral falls as (v_k / "
         "v)^2 (the look-ahead feedback's heading gain grows with v^2; at 9-10 m/s the 20 Hz "
-        "loop weaved the car wall to wall); None: k_lateral at every speed",
+        "loop weaved the car wall to wall); the default is the paper's 4.18 m/s cap, so "
+        "every lap at or below it is k_lateral's; None: k_lateral at every speed",
+    )
+    k_lateral_speed_exponent: float = Field(
+        4.0, ge=0.0, le=6.0,
+        description="tracker: above k_lateral_speed_mps k_lateral falls as (v_k / v)^n, this "
+        "n [1] (2 holds the heading feedback's bandwidth k_e l_d v / L; 4, tuned on "
+        "Oschersleben at --v-max 10: less feedback at speed, where its corrections at the "
+        "friction limit spun the car; no effect at or below k_lateral_speed_mps)",
     )
     lookahead_base_m: float = Field(0.0, ge=0.0, le=10.0, description="tracker: l_0 [m]")
     lookahead_time_s: float = Field(
@@ -219,6 +260,15 @@ class RacelineSettings(Section):
     k_outward_per_s2: float = Field(
         25.0, ge=0.0, le=1000.0,
         description="tracker: acceleration cut per m of drift to a bend's outside [1/s^2]",
+    )
+    outward_drive_only_speed_mps: float | None = Field(
+        4.18, gt=0.0, le=20.0,
+        description="tracker: above this planned speed [m/s] (faded in over 1 m/s) the "
+        "outward cut gives up drive force only (the acceleration down to min(a_plan, 0)), "
+        "never brakes beyond the plan "
+        "(braking takes the same friction ellipse: at 6-8 m/s the cut braked at 7-9 m/s^2 in "
+        "bends and the car spun); the default is the paper's 4.18 m/s cap (every lap capped "
+        "there as before); None: the cut at every speed",
     )
     grip_error_m: float = Field(
         0.0, ge=0.0, le=2.0,

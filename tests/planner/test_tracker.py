@@ -228,5 +228,64 @@ def test_the_lateral_gain_falls_with_the_square_of_the_speed_above_its_speed() -
     assert g.k_lateral_at(0.0) == 0.5 and g.k_lateral_at(5.0) == 0.5
     assert g.k_lateral_at(10.0) == pytest.approx(0.125)
     assert TrackerGains(k_lateral_radpm=0.5).k_lateral_at(10.0) == 0.5
-    o = RacelineSettings(k_lateral_speed_mps=6.0)
+    o = RacelineSettings(k_lateral_speed_mps=6.0, k_lateral_speed_exponent=2.0)
     assert tracker_gains(o).k_lateral_at(12.0) == pytest.approx(0.25 * o.k_lateral_radpm)
+
+
+def test_the_lateral_gain_schedule_is_on_by_default_at_the_papers_cap() -> None:
+    """``[planner.raceline]``'s default turns the schedule on at the paper's 4.18 m/s cap:
+    every lap at or below it keeps k_e (the bench regression), 10 m/s gets (4.18 / 10)^2 of
+    it (issue #21: the tracker weaved wall to wall at 9-10 m/s)."""
+    from shared.config.planner import RacelineSettings
+
+    o = RacelineSettings(k_lateral_speed_exponent=2.0)
+    assert o.k_lateral_speed_mps == 4.18
+    g = tracker_gains(o)
+    assert g.k_lateral_at(4.18) == o.k_lateral_radpm
+    assert g.k_lateral_at(10.0) == pytest.approx(o.k_lateral_radpm * 0.4180**2)
+    assert tracker_gains(RacelineSettings(k_lateral_speed_mps=None)).k_lateral_at(10.0) == (
+        o.k_lateral_radpm
+    )
+
+
+def test_above_its_speed_the_outward_cut_gives_up_drive_but_never_brakes() -> None:
+    """``outward_drive_only_speed_mps`` (default 4.18 m/s): above it a drift to a bend's
+    outside takes the acceleration down to ``min(a_p, 0)`` at most (the braking would take
+    the same friction ellipse the lateral force needs); at or below it, the cut as before."""
+    from dataclasses import replace
+
+    tr = circle(3.0)
+    n = tr.n_points
+    timing = TrackerTiming(0.05, 0.0, 0.0)
+    s_car = 5.0
+    x, y = tr.point_at(s_car)
+    # 0.2 m outside the left bend: to the right of the path (e right +)
+    heading = float(tr.heading_at(s_car))
+    px, py = float(x) + 0.2 * math.sin(heading), float(y) - 0.2 * math.cos(heading)
+    for v_plan, a_plan in ((6.0, 1.0), (6.0, -3.0), (3.0, -3.0), (4.18 + 1e-7, -3.0)):
+        base = ReferenceLap.from_path(tr, tr.signed_curvature(), np.full(n, v_plan), CAR)
+        plan = replace(base, a_mps2=np.full(n, a_plan))
+        cut = 25.0 * 0.2 * math.tanh((1.0 / 3.0) / 0.1)
+        old = Tracker.for_vehicle(plan, timing, TrackerGains(), CAR)
+        new = Tracker.for_vehicle(
+            plan, timing, TrackerGains(outward_drive_only_speed_mps=4.18), CAR
+        )
+        a_old = old.command(px, py, plan.at("yaw", s_car), s_hint_m=s_car).accel_mps2
+        a_new = new.command(px, py, plan.at("yaw", s_car), s_hint_m=s_car).accel_mps2
+        assert a_old == pytest.approx(a_plan - cut, abs=0.05)
+        if v_plan > 5.18:  # 1 m/s over: the rule in full
+            assert a_new == pytest.approx(max(a_plan - cut, min(a_plan, 0.0)), abs=0.05)
+        else:  # at the cap (and over it by IPOPT's tolerance): the cut as before
+            assert a_new == pytest.approx(a_old, abs=1e-5)
+    assert tracker_gains(SETTINGS.raceline).outward_drive_only_speed_mps == 4.18
+
+
+def test_the_schedules_exponent() -> None:
+    """``k_lateral_speed_exponent`` n: ``k_e (v_k / v)^n`` above v_k (default 4), k_e at
+    and below it whatever n."""
+    g = TrackerGains(k_lateral_radpm=0.5, k_lateral_speed_mps=4.0, k_lateral_speed_exponent=4.0)
+    assert g.k_lateral_at(4.0) == 0.5 and g.k_lateral_at(2.0) == 0.5
+    assert g.k_lateral_at(8.0) == pytest.approx(0.5 / 16.0)
+    o = SETTINGS.raceline
+    assert o.k_lateral_speed_exponent == 4.0
+    assert tracker_gains(o).k_lateral_at(10.0) == pytest.approx(o.k_lateral_radpm * 0.418**4)

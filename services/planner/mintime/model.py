@@ -87,6 +87,9 @@ class SpatialModel:
         servo_time_constant_s: ``tau`` of a servo whose reach bounds the steering rate, or
             None (``servo_reach``).
         ellipse_use_max: bound on the ``tyres`` use [-] (``ellipse_fraction ** 2``).
+        reserve: the high-speed reserve ``(v_r [m/s], w [m/s], f_r [-])`` of
+            ``MinTimeSettings`` (``reserve_speed_mps``, ``reserve_width_mps``,
+            ``reserve_fraction``), or None: ``use_bound``.
     """
 
     ode: ca.Function
@@ -97,6 +100,28 @@ class SpatialModel:
     accel_limit_mps2: float
     servo_time_constant_s: float | None = None
     ellipse_use_max: float = 1.0
+    reserve: tuple[float, float, float] | None = None
+
+    def use_bound(self, v_mps: ca.MX | ca.SX | float) -> ca.MX | ca.SX | float:
+        """Bound on each axle's ellipse use [-] at speed `v_mps` [m/s]: ``ellipse_use_max``,
+        times ``1 - (1 - f_r^2) S((v - v_r) / w)`` with the reserve (``S`` the smoothstep
+        ``3 x^2 - 2 x^3`` of x clipped to [0, 1]: 1 up to ``v_r``, ``f_r^2`` from ``v_r +
+        w`` on)."""
+        if self.reserve is None:
+            return self.ellipse_use_max
+        v_r, width, f_r = self.reserve
+        ramp = reserve_ramp(v_mps, v_r, width)
+        return self.ellipse_use_max * (1.0 - (1.0 - f_r * f_r) * ramp)
+
+
+def reserve_ramp(
+    v_mps: ca.MX | ca.SX | float, v_r_mps: float, width_mps: float
+) -> ca.MX | ca.SX | float:
+    """The high-speed reserve's weight [-] at speed `v_mps` [m/s]: the smoothstep ``3 x^2 -
+    2 x^3`` of ``x = (v - v_r) / w`` clipped to [0, 1] (0 up to `v_r_mps`, 1 from `v_r_mps` +
+    `width_mps` on; C1 in v)."""
+    x = ca.fmin(ca.fmax((v_mps - v_r_mps) / width_mps, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 def corner_offset(n: ca.SX, xi: ca.SX, kappa: ca.SX, cx: float, cy: float) -> ca.SX:
@@ -108,11 +133,15 @@ def corner_offset(n: ca.SX, xi: ca.SX, kappa: ca.SX, cx: float, cy: float) -> ca
 
 
 def spatial_model(
-    p: DynamicVehicleParams, slip_fraction: float = 1.0, ellipse_fraction: float = 1.0
+    p: DynamicVehicleParams,
+    slip_fraction: float = 1.0,
+    ellipse_fraction: float = 1.0,
+    reserve: tuple[float, float, float] | None = None,
 ) -> SpatialModel:
     """The functions of `p`'s car along a reference (module docstring); Pacejka tyres keep
     their slip within `slip_fraction` of the peak slip and their force within
-    `ellipse_fraction` of the ellipse (``MinTimeSettings``)."""
+    `ellipse_fraction` of the ellipse, and any friction-limited tyre the high-speed
+    `reserve` ``(v_r [m/s], w [m/s], f_r [-])`` (``MinTimeSettings``; None: none)."""
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
     kappa = ca.SX.sym("kappa")
@@ -173,7 +202,10 @@ def spatial_model(
     if p.tyre_model == "pacejka":  # its F_y,max = sqrt((mu F_z)^2 - F_x^2) is steep at 0
         a_lim = min(a_lim, (1.0 - PACEJKA_ACCEL_BACKOFF) * min(mu_f, mu_r) * GRAVITY_MPS2)
     use_max = ellipse_fraction**2 if p.tyre_model == "pacejka" else 1.0
-    return SpatialModel(ode, tyres, footprint, limited, peak, a_lim, servo_reach(p), use_max)
+    return SpatialModel(
+        ode, tyres, footprint, limited, peak, a_lim, servo_reach(p), use_max,
+        reserve if limited else None,
+    )
 
 
 def servo_reach(p: DynamicVehicleParams) -> float | None:

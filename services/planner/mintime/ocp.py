@@ -18,7 +18,11 @@ state ``x = [n, xi, v, beta, r, delta]``, input ``u = [sv, a]``)::
 
 ``f_e`` (``ellipse_fraction``) and ``f_s`` (``slip_fraction``) are reserves for tyres whose
 force falls past the peak (Pacejka; 1 for the others): the identified car's rear does, and
-a lap on its peak spins at the first tracking error (issue #21).
+a lap on its peak spins at the first tracking error (issue #21). Above
+``reserve_speed_mps`` (off by default) every friction-limited axle's ellipse shrinks
+further, ``f_e -> f_e (1 - (1 - f_r^2) S((v - v_r) / w))^(1/2)`` with ``S`` the smoothstep
+``3 x^2 - 2 x^3`` on [0, 1]: at 9-10 m/s the tracker's steering corrections need grip
+the line would otherwise spend on braking and cornering (issue #21).
 ``mu_i`` from ``shared.vehicle.axle_peak_friction``; the gym's ``linear`` tyres have no
 friction limit (only steering, acceleration and speed bound the car). With Pacejka tyres
 ``|a|`` stays 0.1 % below ``min_i mu_i g`` (``mintime.model.PACEJKA_ACCEL_BACKOFF``). The
@@ -111,6 +115,20 @@ class MinTimeSettings:
             friction ellipse's radius, ``F_x^2 + F_y^2 <= (f mu_i F_z)^2`` (1: the whole
             ellipse): room for the speed loop's corrections, whose longitudinal force
             would otherwise push the lateral one past the peak. No effect on other tyres.
+        reserve_speed_mps: above this speed [m/s] each axle of any friction-limited tyre
+            (``linear_saturated``, ``pacejka``) keeps a reserve of its friction ellipse for
+            the tracker's feedback (``reserve_fraction``, module docstring); None
+            (default), or at or above ``v_max_mps``: no reserve, the problem of before.
+        reserve_fraction: the share of the ellipse's radius an axle may use
+            ``reserve_width_mps`` and more above ``reserve_speed_mps`` [-].
+        reserve_width_mps: the speed range [m/s] over which the share falls from 1 to
+            ``reserve_fraction`` (a smoothstep, so the constraint stays smooth in ``v``).
+        reserve_steering_weight_s: with the reserve, a cost [s] on the steering rate,
+            ``k h sum S(v) (sv / sv_max)^2`` (``S`` the same smoothstep): a line the 20 Hz
+            tracker can steer (without it the lap flicks the wheels at the rate limit for
+            0.1 s while braking at 9-10 m/s, and the car spins); 0: none.
+        reserve_margin_m: with the reserve, the footprint keeps ``m_r S(v)`` [m] more
+            margin (the tracking error's tube grows with the speed); 0: none.
     """
 
     v_max_mps: float = 4.18
@@ -121,6 +139,16 @@ class MinTimeSettings:
     tol: float = 1e-8
     slip_fraction: float = 1.0
     ellipse_fraction: float = 1.0
+    reserve_speed_mps: float | None = None
+    reserve_fraction: float = 0.9
+    reserve_width_mps: float = 2.0
+    reserve_steering_weight_s: float = 0.0
+    reserve_margin_m: float = 0.0
+
+    @property
+    def reserve_active(self) -> bool:
+        """Whether the high-speed reserve changes the problem (a speed below the top)."""
+        return self.reserve_speed_mps is not None and self.reserve_speed_mps < self.v_max_mps
 
     def __post_init__(self) -> None:
         checks = (
@@ -132,7 +160,13 @@ class MinTimeSettings:
             ("tol", lambda v: 0.0 < v < 1.0, "in (0, 1)"),
             ("slip_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),
             ("ellipse_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),
+            ("reserve_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),
+            ("reserve_width_mps", lambda v: 0.01 <= v <= 50.0, "in [0.01, 50] m/s"),
+            ("reserve_steering_weight_s", lambda v: 0.0 <= v <= 10.0, "in [0, 10] s"),
+            ("reserve_margin_m", lambda v: 0.0 <= v <= 0.5, "in [0, 0.5] m"),
         )
+        if self.reserve_speed_mps is not None:
+            checks += (("reserve_speed_mps", lambda v: 0.0 < v <= 100.0, "in (0, 100] m/s"),)
         for name, ok, what in checks:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
@@ -253,8 +287,20 @@ def solve_min_time(
             f"s = {grid.s_nodes[k]:.1f} m; the car needs {vehicle.width_m:.3f} m + 2 x "
             f"{cfg.margin_m:.3f} m margin",
         )
-    model = spatial_model(vehicle, cfg.slip_fraction, cfg.ellipse_fraction)
-    tr = transcribe(model, vehicle, grid, cfg.v_max_mps, cfg.v_min_mps, cfg.margin_m)
+    reserve = (
+        (cfg.reserve_speed_mps, cfg.reserve_width_mps, cfg.reserve_fraction)
+        if cfg.reserve_active
+        else None
+    )
+    model = spatial_model(vehicle, cfg.slip_fraction, cfg.ellipse_fraction, reserve)
+    steering = (
+        (cfg.reserve_speed_mps, cfg.reserve_width_mps, cfg.reserve_steering_weight_s,
+         cfg.reserve_margin_m)
+        if cfg.reserve_active
+        and (cfg.reserve_steering_weight_s > 0.0 or cfg.reserve_margin_m > 0.0)
+        else None
+    )
+    tr = transcribe(model, vehicle, grid, cfg.v_max_mps, cfg.v_min_mps, cfg.margin_m, steering)
     x0 = tr.pack(*initial_guess(grid, vehicle, model, cfg.v_max_mps, cfg.v_min_mps))
     solver = ca.nlpsol("mintime", "ipopt", tr.nlp, ipopt_options(cfg))
     sol = solver(x0=x0, lbx=tr.lbx, ubx=tr.ubx, lbg=tr.lbg, ubg=tr.ubg)

@@ -15,7 +15,8 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
 - ``raceline``: the raceline baseline's line with ``[planner.raceline] line = "min_time"``
   (``raceline_request``): the car's steering within the planner's bounds, top speed
   ``v_max_mps``, grid ``ds_m``, margin ``min_time_margin_m`` and the Pacejka reserves
-  ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``;
+  ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``
+  and its high-speed reserve (``min_time_reserve_speed_mps``, ``_fraction``, ``_width_mps``);
   the margin widened for a slow servo (``servo_margin_m``) and, through
   ``for_pose_source``, for the pose source (``ekf_margin_m``, ``lidar_margin_m``).
 
@@ -92,6 +93,11 @@ def min_time_settings(
         margin_m=min(margin, 1.0),
         slip_fraction=settings.min_time_slip_fraction,
         ellipse_fraction=settings.min_time_ellipse_fraction,
+        reserve_speed_mps=settings.min_time_reserve_speed_mps,
+        reserve_fraction=settings.min_time_reserve_fraction,
+        reserve_width_mps=settings.min_time_reserve_width_mps,
+        reserve_steering_weight_s=settings.min_time_reserve_steering_weight_s,
+        reserve_margin_m=settings.min_time_reserve_margin_m,
     )
 
 

@@ -60,6 +60,11 @@ CONFIG_PLACEHOLDER = "[--config FILE]"
 #: Settings added after laps were cached: at these values they stay out of the key, so the
 #: laps stored before them keep their keys (the same problem, the same lap).
 KEY_FREE_DEFAULTS: dict[str, object] = {"slip_fraction": 1.0, "ellipse_fraction": 1.0}
+#: The high-speed reserve's settings: in the key only when the reserve acts
+#: (``MinTimeSettings.reserve_active``, a friction-limited tyre), so every lap whose top speed
+#: is at or below its speed (the 4.18 m/s cap's) keeps its key.
+RESERVE_FIELDS = ("reserve_speed_mps", "reserve_fraction", "reserve_width_mps",
+                  "reserve_steering_weight_s", "reserve_margin_m")
 
 
 def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings) -> str:
@@ -71,6 +76,9 @@ def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSett
     fields = dataclasses.asdict(settings)
     if vehicle.tyre_model != "pacejka":  # the reserves act on Pacejka tyres only
         fields.update({n: KEY_FREE_DEFAULTS[n] for n in ("slip_fraction", "ellipse_fraction")})
+    if not settings.reserve_active or vehicle.tyre_model == "linear":
+        for name in RESERVE_FIELDS:  # no high-speed reserve: the problem (and key) of before
+            del fields[name]
     for name, default in KEY_FREE_DEFAULTS.items():  # laps solved before these existed
         if fields.get(name) == default:
             del fields[name]

@@ -407,6 +407,8 @@ def tracker_gains(settings: RacelineSettings) -> TrackerGains:
         lookahead_max_m=settings.lookahead_max_m,
         k_outward_per_s2=settings.k_outward_per_s2,
         k_lateral_speed_mps=settings.k_lateral_speed_mps,
+        k_lateral_speed_exponent=settings.k_lateral_speed_exponent,
+        outward_drive_only_speed_mps=settings.outward_drive_only_speed_mps,
     )
 
 

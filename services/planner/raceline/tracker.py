@@ -20,9 +20,11 @@ The law, with ``(s, e)`` the CoG projected onto the planned path (``e`` right +)
 
     l_d     = clip(l_0 + T_l v_p(s), l_min, l_max)               (speed-dependent look-ahead)
     e_la    = e - l_d sin(dpsi)                  (lateral error of the point l_d ahead)
-    delta   = <delta_p>_W_d + k_e e_la                                       [rad]
+    delta   = <delta_p>_W_d + k_e(v_p) e_la                                  [rad]
     e_out   = max(0, e tanh(kappa_p(s) / KAPPA_OUTWARD_1PM))    (drift to the outside)
     a_cmd   = <a_p>_W_v - k_out e_out                                        [m/s^2]
+    a_cmd  -> max(a_cmd, min(<a_p>_W_v, 0))    (above outward_drive_only_speed_mps v_o,
+                                                faded in over OUTWARD_RAMP_MPS above it)
     v_cmd   = <v_p>_W_v + a_cmd / k,   k = k_accel if a_cmd >= 0 else k_brake   [m/s]
 
 The car's speed loop is proportional, ``a = k (v_cmd - v)`` (``speed_gain_accel_per_s``
@@ -80,6 +82,10 @@ KAPPA_OUTWARD_1PM = 0.1
 WINDOW_SAMPLE_S = 0.01
 #: Half-step [s] of the central difference of the planned steering's rate (servo lag).
 LAG_RATE_STEP_S = 0.01
+#: The outward cut's drive-only rule (``TrackerGains.outward_drive_only_speed_mps``) fades in
+#: over this much planned speed [m/s] above its speed: a line capped at that speed (within
+#: IPOPT's bound tolerance, ~1e-8 relative) is driven as before.
+OUTWARD_RAMP_MPS = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -276,6 +282,15 @@ class TrackerGains:
             v / L`` grows with ``v^2`` (``l_d`` with ``v``), and at 9-10 m/s it is past what
             the 20 Hz loop with its delays holds (the car weaved wall to wall on the F1TENTH
             maps' straights); None: ``k_e`` at every speed. At and below it, ``k_e`` itself.
+        k_lateral_speed_exponent: ``n`` of that fall, ``k_e (v_k / v_p)^n`` (2: the
+            heading gain's bandwidth ``k_e l_d v / L`` held; more: less feedback at speed).
+        outward_drive_only_speed_mps: above this planned speed [m/s] the outward cut
+            takes the acceleration down to at most ``min(a_p, 0)`` (faded in over
+            ``OUTWARD_RAMP_MPS`` above it, so a line capped there within IPOPT's tolerance
+            is driven as below it): it gives up drive force
+            but adds no braking, which takes the same friction ellipse (at 6-8 m/s in a bend,
+            0.3 m wide, the cut braked at 7-9 m/s^2 against the plan's 0-1, the rear let go
+            and the car spun); None: the cut at every speed as below it.
     """
 
     k_lateral_radpm: float = 0.5
@@ -285,13 +300,15 @@ class TrackerGains:
     lookahead_max_m: float = 4.0
     k_outward_per_s2: float = 25.0
     k_lateral_speed_mps: float | None = None
+    k_lateral_speed_exponent: float = 2.0
+    outward_drive_only_speed_mps: float | None = None
 
     def k_lateral_at(self, v_mps: float) -> float:
         """``k_e`` [rad/m] at planned speed `v_mps` [m/s] (``k_lateral_speed_mps``)."""
         v_k = self.k_lateral_speed_mps
         if v_k is None or v_mps <= v_k:
             return self.k_lateral_radpm
-        return self.k_lateral_radpm * (v_k / v_mps) ** 2
+        return self.k_lateral_radpm * (v_k / v_mps) ** self.k_lateral_speed_exponent
 
     def lookahead_m(self, v_mps: float) -> float:
         """``l_d`` [m] at speed `v_mps` [m/s]."""
@@ -427,7 +444,12 @@ class Tracker:
             steering += tau * float(np.mean(ahead - behind)) / (2.0 * h)
         s_speed = p.s_at_time(t0 + w_speed)
         outward = max(0.0, e * math.tanh(p.at("kappa", s) / KAPPA_OUTWARD_1PM))
-        a_cmd = c * c * float(np.mean(p.accel_at(s_speed))) - g.k_outward_per_s2 * outward
+        a_plan = c * c * float(np.mean(p.accel_at(s_speed)))
+        a_cmd = a_plan - g.k_outward_per_s2 * outward
+        v_o = g.outward_drive_only_speed_mps
+        if v_o is not None and v_p > v_o:  # the cut gives up drive, never adds braking
+            w = min(1.0, (v_p - v_o) / OUTWARD_RAMP_MPS)  # faded in: continuous in v_p
+            a_cmd += w * (max(a_cmd, min(a_plan, 0.0)) - a_cmd)
         k = self.k_accel if a_cmd >= 0.0 else self.k_brake
         speed = c * float(np.mean(p.at("v", s_speed))) + a_cmd / k
         return TrackerCommand(speed, steering, s, e_path, dpsi, a_cmd, l_d)

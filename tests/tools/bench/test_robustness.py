@@ -284,3 +284,25 @@ def test_a_tiny_matrix_races_and_reports(tmp_path: Path, capsys) -> None:
         r"\d\.\d\d/-/-, off-track \d+, recoveries \d+, spins \d+, below-limit \d+, "
         r"over-cap \d+, unfinished [01], solve p99 max \d+\.\d\d ms", summary), summary
     assert doc["summary"][RACELINE]["cells"] == 1
+
+
+def test_a_config_file_lays_its_tables_over_every_car(tmp_path: Path) -> None:
+    """``--config FILE``: the file's tables over each car's, the cap's and the grid's (the
+    laps it changes keyed on the settings it gives); a wrong file is a BenchError."""
+    f = tmp_path / "try.toml"
+    f.write_text("[planner.raceline]\nk_lateral_radpm = 0.4\nmin_time_reserve_speed_mps = 6.0\n",
+                 encoding="utf-8")
+    args = rb.build_parser().parse_args(["--tracks", "paperlike", "--v-max", "10",
+                                         "--config", str(f)])
+    matrix = rb.matrix_from_args(args)
+    assert matrix.extra == {"planner": {"raceline": {"k_lateral_radpm": 0.4,
+                                                     "min_time_reserve_speed_mps": 6.0}}}
+    for car in ("default", "identified"):
+        o = rb.config_for(car, 10.0, None, matrix.extra).planner.raceline
+        assert (o.k_lateral_radpm, o.min_time_reserve_speed_mps, o.v_max_mps) == (0.4, 6.0, 10.0)
+    tasks = [t for t in rb.lap_tasks(matrix) if t.use == RACELINE]
+    assert tasks and all(t.settings.reserve_speed_mps == 6.0 for t in tasks)
+    assert rb.matrix_from_args(rb.build_parser().parse_args(["--tracks", "paperlike"])).extra == {}
+    f.write_text("[planner.raceline]\nk_lateral_radpm = -1\n", encoding="utf-8")
+    with pytest.raises(rb.BenchError, match="--config"):
+        rb.matrix_from_args(args)
