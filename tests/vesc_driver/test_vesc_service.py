@@ -375,6 +375,10 @@ def test_missing_port_is_waited_for_then_sigterm_brakes_and_exits(tmp_path: Path
             t_sig = time.monotonic()
             code = stop_process(rig.proc, signal.SIGTERM)
         assert code == 0, rig.output()
+        # the fake reads its end of the pty on its own thread: on a loaded machine the frame
+        # the driver wrote before it exited may be decoded a little later
+        fake.wait_for(lambda f: bool(events_after(f, CommandId.SET_CURRENT_BRAKE, t_sig)),
+                      WAIT_S)
         brakes = events_after(fake, CommandId.SET_CURRENT_BRAKE, t_sig)
         assert brakes and brakes[0].value == pytest.approx(20.0), rig.output()
         assert not events_after(fake, CommandId.SET_RPM, brakes[0].t_s)
