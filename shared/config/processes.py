@@ -7,7 +7,8 @@ them. Every thread the process starts afterwards inherits them (on Linux nicenes
 and the scheduling policy are per thread and inherited by new threads).
 
 The defaults work on a 2-core laptop without root: the critical path (simulator, bridge,
-planner, VESC driver, lidar driver) asks for ``SCHED_RR`` priority 10 and nice -10, each
+planner, VESC driver, lidar driver, and the hub ``services.router`` every message of theirs
+passes through) asks for ``SCHED_RR`` priority 10 and nice -10, each
 where permitted (``realtime_if_permitted``, ``nice_if_permitted``: without the right it runs
 at normal priority, said in one info line, no warning), telemetry
 (and the Rerun viewer it spawns, which inherits its niceness) and the ROS 2 gateway niced
@@ -78,7 +79,10 @@ class ProcessSettings(Section):
     """The ``[processes]`` section: one ``ProcessPriority`` per process of the roster
     (``shared/roster.py``; ``tests/shared/test_priority.py`` checks the two agree)."""
 
-    router: ProcessPriority = ProcessPriority()
+    #: the hub carries every message of the critical path (pose, state, command): at
+    #: normal priority a loaded machine held them back 250 ms and more (issue 25: the
+    #: stack tests beside a full test suite)
+    router: ProcessPriority = CRITICAL
     simulator: ProcessPriority = CRITICAL
     localization_bridge: ProcessPriority = CRITICAL
     planner: ProcessPriority = CRITICAL

@@ -42,7 +42,7 @@ class FakeOs:
 
 def test_the_defaults_raise_the_critical_path_where_permitted_and_nice_telemetry() -> None:
     cfg = RacestackConfig()
-    for name in ("simulator", "localization_bridge", "planner", "vesc_driver"):
+    for name in ("simulator", "localization_bridge", "planner", "vesc_driver", "router"):
         p = cfg.processes.of(name)
         assert p is not None and p.nice < 0 and p.nice_if_permitted
         assert p.realtime_priority > 0 and p.realtime_if_permitted and not p.cpus
