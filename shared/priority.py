@@ -6,8 +6,11 @@ before the bus and the workers start, so every thread inherits it) sets what
 it could not set (no right, no such CPU, not Linux), or an info line for a nice or a
 real-time priority asked for only where permitted (``nice_if_permitted``,
 ``realtime_if_permitted``), never raising: a process that may not raise
-its priority runs on at the one it has. ``SchedulingCalls`` holds the OS calls, so the rules are
-tested without changing the test process.
+its priority runs on at the one it has. A process asking for no real-time priority drops one
+it inherited (a service started by ``racestack up``, whose launcher hosts the hub at the
+hub's priority), and sets its niceness even when it inherited another.
+``SchedulingCalls`` holds the OS calls, so the rules are tested without changing the test
+process.
 """
 
 from __future__ import annotations
@@ -51,6 +54,15 @@ def _set_realtime(priority: int) -> None:
         os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(priority))
 
 
+def _is_realtime() -> bool:
+    return os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
+
+
+def _set_normal() -> None:
+    for tid in _threads():  # giving up a real-time policy needs no right
+        os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+
+
 @dataclass(frozen=True)
 class SchedulingCalls:
     """The OS calls ``apply_priority`` makes (Linux's, by default)."""
@@ -60,6 +72,8 @@ class SchedulingCalls:
     available_cpus: Callable[[], set[int]] = _available_cpus
     set_affinity: Callable[[set[int]], None] = _setaffinity
     set_realtime: Callable[[int], None] = _set_realtime
+    is_realtime: Callable[[], bool] = _is_realtime
+    set_normal: Callable[[], None] = _set_normal
 
 
 @dataclass
@@ -88,6 +102,12 @@ def apply_priority(
             line = (f"real-time priority {settings.realtime_priority} not permitted "
                     f"({_reason(exc)}): normal scheduling at nice {settings.nice}")
             (report.notes if settings.realtime_if_permitted else warnings).append(line)
+    else:  # normal scheduling, even when started by a real-time parent (the launcher's hub)
+        try:
+            if os_calls.is_realtime():
+                os_calls.set_normal()
+        except (AttributeError, OSError) as exc:
+            warnings.append(f"real-time policy inherited and not dropped ({_reason(exc)})")
     try:
         if os_calls.get_nice() != settings.nice or settings.nice != 0:
             os_calls.set_nice(settings.nice)  # every thread (one a library started too)

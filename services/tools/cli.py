@@ -75,7 +75,8 @@ def _cmd_up(args: argparse.Namespace) -> int:
     install_stop_handlers(stop)
     run_dir = Path(args.run_dir) if args.run_dir else None
     opts = UpOptions(config_path=args.config, laps=args.laps, run_dir=run_dir,
-                     config_data=data, verbose=args.verbose, cars=args.cars)
+                     config_data=data, verbose=args.verbose, cars=args.cars,
+                     hub_priority=True)
     if args.serve is not None:
         opts.telemetry_args += ["--serve", str(args.serve)]
     return run_up(cfg, opts, stop_requested=stop.is_set)

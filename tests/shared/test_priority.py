@@ -15,9 +15,10 @@ from shared.roster import ROSTER
 class FakeOs:
     """Records the calls; `deny` names the ones that raise PermissionError."""
 
-    def __init__(self, nice: int = 0, cpus: set[int] | None = None, deny: tuple = ()) -> None:
+    def __init__(self, nice: int = 0, cpus: set[int] | None = None, deny: tuple = (),
+                 realtime: int = 0) -> None:
         self.nice, self.cpus, self.deny = nice, cpus or {0, 1}, deny
-        self.realtime = 0
+        self.realtime = realtime
 
     def calls(self) -> SchedulingCalls:
         def guard(name: str) -> None:
@@ -36,8 +37,13 @@ class FakeOs:
             guard("realtime")
             self.realtime = p
 
+        def set_normal() -> None:
+            guard("normal")
+            self.realtime = 0
+
         return SchedulingCalls(lambda: self.nice, set_nice, lambda: set(self.cpus),
-                               set_affinity, set_realtime)
+                               set_affinity, set_realtime, lambda: self.realtime > 0,
+                               set_normal)
 
 
 def test_the_defaults_raise_the_critical_path_where_permitted_and_nice_telemetry() -> None:
@@ -93,3 +99,60 @@ def test_cpus_the_machine_lacks_leave_the_process_on_all() -> None:
     assert len(warnings) == 1 and "none of them is available" in warnings[0]
     assert fake.cpus == {0, 1}
     assert apply_priority(None, fake.calls()).warnings == []
+
+
+def test_a_process_asking_for_no_real_time_drops_the_one_it_inherited() -> None:
+    """A service started by ``racestack up`` (whose launcher runs at the hub's real-time
+    priority): telemetry asks for nice 10 and no real time, and gets exactly that."""
+    fake = FakeOs(nice=-10, realtime=10)
+    report = apply_priority(ProcessPriority(nice=10), fake.calls())
+    assert report.warnings == report.notes == []
+    assert (fake.nice, fake.realtime) == (10, 0)
+    fake = FakeOs(nice=-10, realtime=10)
+    apply_priority(ProcessPriority(), fake.calls())  # nice 0 asked for: 0, not the -10
+    assert (fake.nice, fake.realtime) == (0, 0)
+    fake = FakeOs(realtime=10, deny=("normal",))
+    warnings = apply_priority(ProcessPriority(), fake.calls()).warnings
+    assert len(warnings) == 1 and "inherited" in warnings[0]
+
+
+CHILD = """
+import os, sys
+from shared.config.processes import NICED
+from shared.priority import apply_priority
+apply_priority(NICED)
+print(os.sched_getscheduler(0) == os.SCHED_OTHER, os.getpriority(os.PRIO_PROCESS, 0))
+"""
+
+PARENT = """
+import os, subprocess, sys
+from shared.config.processes import CRITICAL
+from shared.priority import apply_priority
+report = apply_priority(CRITICAL)
+if report.notes or report.warnings:
+    print("not permitted")
+    sys.exit(0)
+print(os.sched_getscheduler(0) == os.SCHED_RR)
+out = subprocess.run([sys.executable, "-c", sys.argv[1]], capture_output=True, text=True,
+                     timeout=60).stdout
+print(out.strip())
+"""
+
+
+def test_a_real_time_parent_s_niced_child_runs_at_normal_scheduling() -> None:
+    """On the machine's own scheduler, in two throw-away processes (the test process keeps
+    its scheduling): a parent at the critical path's priority starts a child that applies
+    telemetry's settings; the child is ``SCHED_OTHER`` at nice 10."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, "-c", PARENT, CHILD], capture_output=True,
+                          text=True, timeout=120, cwd=root)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.split("\n")
+    if lines[0] == "not permitted":
+        pytest.skip("real-time priority not permitted here (needs CAP_SYS_NICE or ulimit -r)")
+    assert lines[0] == "True", done.stdout
+    assert lines[1] == "True 10", done.stdout

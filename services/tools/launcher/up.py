@@ -74,6 +74,7 @@ from shared.messages import (
 )
 from shared.net import loopback_port_taken
 from shared.outdir import missing_dirs, remove_empty_dirs, writable_dir_problem
+from shared.priority import apply_priority
 from shared.roster import up_names
 from shared.service import Service, publishes, subscribes
 from shared.service_shell import HUB_WAIT_S, count_problem, endpoint_reachable, hub_endpoints
@@ -118,6 +119,12 @@ class UpOptions:
     verbose: bool = False
     #: ``--cars N``: race N cars (None: the configuration's ``[[cars]]``, else one car)
     cars: int | None = None
+    #: True (``racestack up``): this process, hosting the hub, takes the hub's scheduling
+    #: (``[processes.router]``, real time where permitted) just before the bus opens, so
+    #: Zenoh's threads carry the critical path's messages at its priority (the services it
+    #: starts set their own: one asking for none drops the real-time policy it inherited).
+    #: False: the caller's process keeps its own (a test, a benchmark running ``up`` inside).
+    hub_priority: bool = False
 
 
 def up_config(
@@ -256,6 +263,8 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
         except MinTimeError as exc:
             remove_empty_dirs(created)
             return _cannot_start(str(exc))
+    if opts.hub_priority and cfg.bus.security != "mtls":  # mtls: services.router is the hub
+        _take_hub_priority(cfg)
     try:
         bus = Launcher.open_bus(cfg.bus)
     except BusOpenError as exc:
@@ -295,6 +304,18 @@ def _run_up(cfg: RacestackConfig, opts: UpOptions, stop_requested=lambda: False)
         finally:
             logging.getLogger().removeHandler(file_log)
             file_log.close()
+
+
+def _take_hub_priority(cfg: RacestackConfig) -> None:
+    """Schedule this process as the hub (``[processes.router]``): after the minimum-time lap
+    is made (a long solve at real-time priority would hold a CPU), before Zenoh starts its
+    threads (they inherit it). What is not permitted is one log line (info where asked only
+    where permitted), as in a service."""
+    report = apply_priority(cfg.processes.router)
+    for line in report.warnings:
+        log.warning("[processes.router] %s", line)
+    for line in report.notes:
+        log.info("[processes.router] %s", line)
 
 
 def _serve_port(opts: UpOptions) -> int | None:

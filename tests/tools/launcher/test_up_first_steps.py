@@ -258,3 +258,39 @@ def test_the_progress_line_of_the_out_lap() -> None:
     assert up.lap_progress_line(0, 3, 12.34, 32.77, 3.214) == (
         "out lap: 12.3 of 32.8 m (38 %), 3.21 m/s")
     assert up.lap_progress_line(1, 3, 1.0, 32.77, 3.0).startswith("lap 1/3: ")
+
+
+def test_up_takes_the_hub_s_priority_only_when_asked_and_hosting_the_hub(
+        tmp_path: Path, monkeypatch) -> None:
+    """``racestack up`` (``hub_priority``) schedules the launcher as ``[processes.router]``
+    before the bus opens; called in a test's own process (the default) it changes nothing."""
+    order: list[str] = []
+
+    class _Bus:
+        settings = type("S", (), {"listen": ["tcp/127.0.0.1:1"]})()
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return None
+
+    def opened(*a, **k):
+        order.append("bus")
+        return _Bus()
+
+    def applied(settings):
+        order.append(settings)
+        return type("R", (), {"warnings": [], "notes": []})()
+
+    monkeypatch.setattr(up.Launcher, "open_bus", opened)
+    monkeypatch.setattr(up, "_unreachable_hub", lambda cfg, services: [])
+    monkeypatch.setattr(up, "_race", lambda *a: 0)
+    monkeypatch.setattr(up, "apply_priority", applied)
+    cfg = RacestackConfig()
+    for asked, expected in ((False, ["bus"]), (True, [cfg.processes.router, "bus"])):
+        order.clear()
+        opts = up.UpOptions(config_path=None, run_dir=tmp_path / f"run{asked}",
+                            services=("simulator",), hub_priority=asked)
+        assert up.run_up(cfg, opts) == 0
+        assert order == expected
