@@ -180,6 +180,18 @@ def test_up_with_an_unknown_method_or_track_is_one_line_and_nothing_starts(
     assert opened == [] and not run_dir.exists()
 
 
+class _FakeBus:
+    """Stands in for the launcher's bus (no Zenoh session): listens on one endpoint."""
+
+    settings = type("S", (), {"listen": ["tcp/127.0.0.1:1"]})()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+
 def test_the_services_read_the_config_with_the_overrides(tmp_path: Path, monkeypatch) -> None:
     """With --track/--method ``up`` writes RUN/config.toml and starts the services with it."""
     written = {}
@@ -188,16 +200,7 @@ def test_the_services_read_the_config_with_the_overrides(tmp_path: Path, monkeyp
         written["path"] = opts.config_path
         return 0
 
-    class _Bus:
-        settings = type("S", (), {"listen": ["tcp/127.0.0.1:1"]})()
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            return None
-
-    monkeypatch.setattr(up.Launcher, "open_bus", lambda *a, **k: _Bus())
+    monkeypatch.setattr(up.Launcher, "open_bus", lambda *a, **k: _FakeBus())
     monkeypatch.setattr(up, "_unreachable_hub", lambda cfg, services: [])
     monkeypatch.setattr(up, "_race", no_race)
     cfg, data = launcher.up_config(None, track="gentle", method=MPCC)
@@ -266,18 +269,9 @@ def test_up_takes_the_hub_s_priority_only_when_asked_and_hosting_the_hub(
     before the bus opens; called in a test's own process (the default) it changes nothing."""
     order: list[str] = []
 
-    class _Bus:
-        settings = type("S", (), {"listen": ["tcp/127.0.0.1:1"]})()
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            return None
-
     def opened(*a, **k):
         order.append("bus")
-        return _Bus()
+        return _FakeBus()
 
     def applied(settings):
         order.append(settings)
