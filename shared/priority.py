@@ -1,4 +1,5 @@
-"""A process's own scheduling at start: nice, CPU affinity, real-time priority.
+"""A process's own scheduling at start: nice, CPU affinity, real-time priority, and how
+fast an idle CPU must wake for it (PM QoS).
 
 ``apply_priority(settings)`` (the common shell calls it after loading the configuration,
 before the bus and the workers start, so every thread inherits it) sets what
@@ -8,7 +9,8 @@ real-time priority asked for only where permitted (``nice_if_permitted``,
 ``realtime_if_permitted``), never raising: a process that may not raise
 its priority runs on at the one it has. A process asking for no real-time priority drops one
 it inherited (a service started by ``racestack up``, whose launcher hosts the hub at the
-hub's priority), and sets its niceness even when it inherited another.
+hub's priority), and sets its niceness even when it inherited another. A
+``wakeup_latency_us`` is a PM QoS request held open for the life of the process.
 ``SchedulingCalls`` holds the OS calls, so the rules are tested without changing the test
 process.
 """
@@ -16,6 +18,7 @@ process.
 from __future__ import annotations
 
 import os
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -63,6 +66,23 @@ def _set_normal() -> None:
         os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
 
 
+#: The PM QoS requests this process holds (open ``/dev/cpu_dma_latency`` descriptors): a
+#: request lasts while its descriptor is open, so they stay open until the process ends.
+_WAKEUP_REQUESTS: list[int] = []
+#: Linux's CPU wake-up latency request device (PM QoS).
+CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"
+
+
+def _request_wakeup_latency(us: int) -> None:
+    fd = os.open(CPU_LATENCY_DEVICE, os.O_WRONLY | os.O_CLOEXEC)
+    try:
+        os.write(fd, struct.pack("=i", us))  # a 32-bit integer [us]
+    except BaseException:
+        os.close(fd)
+        raise
+    _WAKEUP_REQUESTS.append(fd)
+
+
 @dataclass(frozen=True)
 class SchedulingCalls:
     """The OS calls ``apply_priority`` makes (Linux's, by default)."""
@@ -74,6 +94,7 @@ class SchedulingCalls:
     set_realtime: Callable[[int], None] = _set_realtime
     is_realtime: Callable[[], bool] = _is_realtime
     set_normal: Callable[[], None] = _set_normal
+    request_wakeup_latency: Callable[[int], None] = _request_wakeup_latency
 
 
 @dataclass
@@ -128,7 +149,22 @@ def apply_priority(
         except (AttributeError, OSError) as exc:
             warnings.append(f"cpus {list(settings.cpus)} not set ({_reason(exc)}): running "
                             "on all")
+    if settings.wakeup_latency_us is not None:
+        try:
+            os_calls.request_wakeup_latency(settings.wakeup_latency_us)
+        except (AttributeError, OSError) as exc:  # not root, no such device (not Linux)
+            line = (f"CPU wake-up latency limit {settings.wakeup_latency_us} us not "
+                    f"permitted ({_wakeup_reason(exc)}): the kernel's idle states")
+            (report.notes if settings.wakeup_latency_if_permitted else warnings).append(line)
     return report
+
+
+def _wakeup_reason(exc: BaseException) -> str:
+    if isinstance(exc, PermissionError):
+        return f"no permission to write {CPU_LATENCY_DEVICE}: needs root"
+    if isinstance(exc, FileNotFoundError | AttributeError):
+        return f"not supported on this system (no {CPU_LATENCY_DEVICE})"
+    return str(exc) or type(exc).__name__
 
 
 def _reason(exc: BaseException) -> str:

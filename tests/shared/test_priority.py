@@ -19,6 +19,7 @@ class FakeOs:
                  realtime: int = 0) -> None:
         self.nice, self.cpus, self.deny = nice, cpus or {0, 1}, deny
         self.realtime = realtime
+        self.wakeup_us: list[int] = []  #: the PM QoS requests made
 
     def calls(self) -> SchedulingCalls:
         def guard(name: str) -> None:
@@ -41,9 +42,15 @@ class FakeOs:
             guard("normal")
             self.realtime = 0
 
+        def request_wakeup_latency(us: int) -> None:
+            if "wakeup_missing" in self.deny:
+                raise FileNotFoundError(2, "No such file or directory")
+            guard("wakeup")
+            self.wakeup_us.append(us)
+
         return SchedulingCalls(lambda: self.nice, set_nice, lambda: set(self.cpus),
                                set_affinity, set_realtime, lambda: self.realtime > 0,
-                               set_normal)
+                               set_normal, request_wakeup_latency)
 
 
 def test_the_defaults_raise_the_critical_path_where_permitted_and_nice_telemetry() -> None:
@@ -52,15 +59,18 @@ def test_the_defaults_raise_the_critical_path_where_permitted_and_nice_telemetry
         p = cfg.processes.of(name)
         assert p is not None and p.nice < 0 and p.nice_if_permitted
         assert p.realtime_priority > 0 and p.realtime_if_permitted and not p.cpus
+        assert p.wakeup_latency_us == 0 and p.wakeup_latency_if_permitted
     assert cfg.processes.telemetry.nice > 0 and cfg.processes.telemetry.realtime_priority == 0
     # where permitted the critical path runs real time
     fake = FakeOs()
     assert apply_priority(cfg.processes.planner, fake.calls()).warnings == []
     assert fake.realtime == cfg.processes.planner.realtime_priority
+    assert fake.wakeup_us == [0]
+    assert cfg.processes.telemetry.wakeup_latency_us is None
     # without the right the default is no warning, only a note each, and the process runs on
-    fake = FakeOs(deny=("nice", "realtime"))
+    fake = FakeOs(deny=("nice", "realtime", "wakeup"))
     report = apply_priority(cfg.processes.planner, fake.calls())
-    assert report.warnings == [] and len(report.notes) == 2
+    assert report.warnings == [] and len(report.notes) == 3
     assert (fake.nice, fake.realtime) == (0, 0)
     assert cfg.processes.of("bench") is None  # a tool has none of its own
 
@@ -114,6 +124,55 @@ def test_a_process_asking_for_no_real_time_drops_the_one_it_inherited() -> None:
     fake = FakeOs(realtime=10, deny=("normal",))
     warnings = apply_priority(ProcessPriority(), fake.calls()).warnings
     assert len(warnings) == 1 and "inherited" in warnings[0]
+
+
+def test_a_wakeup_latency_is_one_request_and_without_the_right_one_line() -> None:
+    fake = FakeOs()
+    assert apply_priority(ProcessPriority(wakeup_latency_us=0), fake.calls()).warnings == []
+    assert fake.wakeup_us == [0]
+    assert apply_priority(ProcessPriority(), fake.calls()).warnings == []
+    assert fake.wakeup_us == [0]  # None: no request
+    for deny, why in (("wakeup", "needs root"), ("wakeup_missing", "not supported")):
+        fake = FakeOs(deny=(deny,))
+        report = apply_priority(ProcessPriority(wakeup_latency_us=5), fake.calls())
+        assert len(report.warnings) == 1 and why in report.warnings[0], report.warnings
+        assert "wake-up latency limit 5 us not permitted" in report.warnings[0]
+        report = apply_priority(
+            ProcessPriority(wakeup_latency_us=5, wakeup_latency_if_permitted=True),
+            fake.calls())
+        assert report.warnings == [] and len(report.notes) == 1
+    with pytest.raises(ConfigError):
+        config_from_dict({"processes": {"planner": {"wakeup_latency_us": -1}}})
+
+
+WAKEUP = """
+import os, struct, sys
+from shared.config.processes import ProcessPriority
+from shared.priority import CPU_LATENCY_DEVICE, apply_priority
+report = apply_priority(ProcessPriority(wakeup_latency_us=7))
+if report.warnings:
+    print("not permitted")
+    sys.exit(0)
+with open(CPU_LATENCY_DEVICE, "rb") as dev:  # the kernel's target: the smallest request
+    print("held", struct.unpack("=i", dev.read(4))[0])
+"""
+
+
+def test_a_wakeup_latency_request_is_held_by_the_process_that_asked() -> None:
+    """On the machine's own kernel, in a throw-away process: the request is made and held
+    (the kernel then reports at most the smallest request of all processes)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, "-c", WAKEUP], capture_output=True, text=True,
+                          timeout=60, cwd=root)
+    assert done.returncode == 0, done.stderr
+    if done.stdout.strip() == "not permitted":
+        pytest.skip("no PM QoS device this process may write (needs root and Linux)")
+    word, value = done.stdout.split()
+    assert word == "held" and int(value) <= 7, done.stdout
 
 
 CHILD = """
