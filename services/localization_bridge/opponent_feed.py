@@ -91,7 +91,8 @@ class OpponentFeed:
         self.detector = OpponentDetector(
             self.grid,
             DetectorParams(length_m=self.length_m, width_m=self.width_m,
-                           unexplained_m=s.unexplained_m, min_points=s.min_points),
+                           unexplained_m=s.unexplained_m, min_points=s.min_points,
+                           tracked_unexplained_m=s.tracked_unexplained_m),
             track=self.track,
         )
         self.tracker = OpponentTracker(
@@ -132,7 +133,8 @@ class OpponentFeed:
         t0 = time.thread_time()
         sensor = self.sensor_pose(*rear_axle_pose)
         found = self.detector.detect(ranges_m, angle_min_rad, angle_increment_rad,
-                                     self.settings.max_range_m, sensor)
+                                     self.settings.max_range_m, sensor,
+                                     self.tracker.predicted_centres(t_s))
         view = ScanView(ranges_m, angle_min_rad, angle_increment_rad,
                         self.settings.max_range_m, sensor)
         confirmed = self.tracker.update(t_s, [(d.x_m, d.y_m, d.yaw_rad) for d in found], view)

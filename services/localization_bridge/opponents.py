@@ -5,7 +5,14 @@ Detection, per scan (``OpponentDetector.detect``), with the sensor pose known in
 1. beam end points the map does not explain: a return inside range whose end point is more
    than ``unexplained_m`` from the nearest wall surface of the map (the same free / blocked
    border distance as the particle filter's likelihood field, ``wall_distance_m``) and lies
-   on a free cell (inside the track; points behind walls are map noise, not cars);
+   on a free cell (inside the track; points behind walls are map noise, not cars). Within
+   ``tracked_radius_m`` of a car already tracked (``detect``'s `tracked_xy`: the tracker's
+   confirmed tracks predicted to the scan) the distance is ``tracked_unexplained_m`` (at
+   least one map cell) instead: a car on the racing line runs its side within centimetres
+   of the wall at every apex, and with the wall's 15 cm taken off, the piece of its rear
+   left is too small to be a car (the track died and the car behind, seeing nobody, drove
+   into it: the lidar-view contacts of the bench); so the track keeps it, and a car first
+   seen against a wall is found when it leaves it;
 2. clustered in beam order: consecutive unexplained beams are one cluster while the beam
    index step is at most ``max_beam_gap`` and the end points are within ``cluster_gap_m``;
 3. fitted with a car-sized box: the heading of the cluster's rectangle by the search-based
@@ -50,6 +57,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -79,6 +87,8 @@ class DetectorParams:
     length_m: float = CAR.length_m
     width_m: float = CAR.width_m
     unexplained_m: float = 0.15
+    tracked_unexplained_m: float = 0.05
+    tracked_radius_m: float = 0.5
     cluster_gap_m: float = 0.15
     max_beam_gap: int = 3
     min_points: int = 4
@@ -136,7 +146,7 @@ def fit_car_box(
         occluded_ends: whether the first / last point (in beam order) is cut off by something
             nearer the sensor (the car goes on behind it): on an axis where exactly one edge
             is such a cut end, the footprint is anchored on the other edge (the axis of a
-            cut end is the one the last few points run along towards it).
+            cut end is the one its last ``CUT_RUN_M`` of points run along towards it).
 
     Returns:
         (x m, y m, yaw rad) of the footprint's centre and long axis, or None when the cluster
@@ -175,8 +185,10 @@ def fit_car_box(
     sizes = (length, width) if long_i == 0 else (width, length)
     mid = np.zeros(2)
     # a cut end continues the scan's run along the face it lies on: that axis, that way
-    back = min(3, p.shape[0] - 1)
-    run = np.array([p[0] - p[back], p[-1] - p[-1 - back]]) @ ax.T  # (2 ends, 2 axes)
+    # (the run over the last ``CUT_RUN_M`` of points: at close range the last few beams lie
+    # millimetres apart and their run is the range noise's, which flipped the box to the
+    # sensor's side of a car seen from beside)
+    run = np.array([_end_run(p), _end_run(p[::-1])]) @ ax.T  # (2 ends, 2 axes)
     cut_axis = np.argmax(np.abs(run), axis=1)
     cut_sign = run[np.arange(2), cut_axis]
     for i in range(2):
@@ -198,6 +210,19 @@ def fit_car_box(
     xy = centre + mid @ ax
     yaw = float(math.atan2(ax[long_i, 1], ax[long_i, 0]))
     return float(xy[0]), float(xy[1]), yaw
+
+
+#: The run of a cluster's end is taken over its last points within this distance [m].
+CUT_RUN_M = 0.08
+
+
+def _end_run(p: np.ndarray) -> np.ndarray:
+    """(2,) [m]: the run of the points `p` (n, 2) into their end ``p[0]``: ``p[0] - p[j]``
+    with ``p[j]`` the first point at least ``CUT_RUN_M`` from it (else the last point)."""
+    d = np.hypot(*(p - p[0]).T)
+    far = np.flatnonzero(d >= CUT_RUN_M)
+    j = int(far[0]) if far.size else p.shape[0] - 1
+    return p[0] - p[j]
 
 
 class OpponentDetector:
@@ -225,17 +250,27 @@ class OpponentDetector:
         self._dist = wall_distance_m(blocked, float(grid.resolution_m), params.distance_cap_m)
         self._rows, self._cols = blocked.shape
 
-    def unexplained(self, xy: np.ndarray) -> np.ndarray:
+    def unexplained(
+        self, xy: np.ndarray, tracked_xy: Sequence[tuple[float, float]] = ()
+    ) -> np.ndarray:
         """(n,) bool: points (n, 2) [m] on free cells farther than ``unexplained_m`` from
-        every wall (outside the map: False)."""
+        every wall (outside the map: False); within ``tracked_radius_m`` of a centre of
+        `tracked_xy` (m, m) farther than ``tracked_unexplained_m`` (at least one cell)."""
         gx, gy = to_grid_frame(self.grid, xy[:, 0], xy[:, 1])
         r = float(self.grid.resolution_m)
         col = np.floor(gx / r).astype(np.int64)
         row = np.floor(gy / r).astype(np.int64)
         inside = (col >= 0) & (col < self._cols) & (row >= 0) & (row < self._rows)
+        p = self.params
+        need = np.full(xy.shape[0], p.unexplained_m)
+        if len(tracked_xy):
+            c = np.asarray(tracked_xy, dtype=float).reshape(-1, 2)
+            d2 = ((xy[:, None, :] - c[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+            low = min(p.unexplained_m, max(p.tracked_unexplained_m, r))
+            need = np.where(d2 <= p.tracked_radius_m**2, low, need)
         out = np.zeros(xy.shape[0], dtype=bool)
         ri, ci = row[inside], col[inside]
-        out[inside] = ~self._blocked[ri, ci] & (self._dist[ri, ci] > self.params.unexplained_m)
+        out[inside] = ~self._blocked[ri, ci] & (self._dist[ri, ci] > need[inside])
         return out
 
     def detect(
@@ -245,6 +280,7 @@ class OpponentDetector:
         angle_increment_rad: float,
         range_max_m: float,
         sensor_pose: tuple[float, float, float],
+        tracked_xy: Sequence[tuple[float, float]] = (),
     ) -> list[Detection]:
         """Opponents in one scan.
 
@@ -253,6 +289,9 @@ class OpponentDetector:
                 `angle_increment_rad` [rad]; returns at or beyond `range_max_m` (and
                 non-finite or non-positive ones) are no returns.
             sensor_pose: (x m, y m, yaw rad) of the sensor in the map frame.
+            tracked_xy: centres [m] of the cars tracked so far, predicted to this scan
+                (``OpponentTracker.predicted_centres``): near them a point need only be
+                ``tracked_unexplained_m`` from a wall (module docstring, step 1).
 
         Returns:
             the detections, in beam order.
@@ -265,7 +304,7 @@ class OpponentDetector:
             return []
         ang = yaw0 + angle_min_rad + angle_increment_rad * idx
         xy = np.column_stack([x0 + r[idx] * np.cos(ang), y0 + r[idx] * np.sin(ang)])
-        keep = self.unexplained(xy)
+        keep = self.unexplained(xy, tracked_xy)
         idx, xy = idx[keep], xy[keep]
         if idx.size == 0:
             return []
@@ -436,6 +475,16 @@ class OpponentTracker:
         tr.x = F @ tr.x
         tr.P = F @ tr.P @ F.T + Q
         tr.t_s = t_s
+
+    def predicted_centres(self, t_s: float) -> list[tuple[float, float]]:
+        """Centres [m] of the confirmed tracks predicted to `t_s` [s] at their velocity
+        (the tracks are not changed): the `tracked_xy` of ``OpponentDetector.detect``."""
+        out = []
+        for tr in self.tracks:
+            if tr.confirmed:
+                dt = max(0.0, t_s - tr.t_s)
+                out.append((float(tr.x[0] + tr.x[2] * dt), float(tr.x[1] + tr.x[3] * dt)))
+        return out
 
     def update(
         self,

@@ -72,6 +72,9 @@ class OpponentSettings(Section):
             scan, no ``opponents``); False: never.
         unexplained_m: a beam end farther than this from every wall of the map is a
             candidate opponent point [m].
+        tracked_unexplained_m: ... and within half a metre of a car already tracked, this
+            far (at least one map cell): a car on the racing line runs within centimetres
+            of the wall at the apexes, and would be lost there [m].
         min_points: fewest points of a cluster that is a car.
         max_range_m: beams longer than this are ignored [m].
         confirm_hits: detections before a track is published.
@@ -88,6 +91,7 @@ class OpponentSettings(Section):
 
     enabled: bool | None = None
     unexplained_m: float = Field(0.15, gt=0.0, le=2.0, allow_inf_nan=False)
+    tracked_unexplained_m: float = Field(0.05, gt=0.0, le=2.0, allow_inf_nan=False)
     min_points: int = Field(4, ge=2, le=1000)
     max_range_m: float = Field(10.0, gt=0.0, le=100.0, allow_inf_nan=False)
     confirm_hits: int = Field(3, ge=1, le=100)

@@ -216,7 +216,8 @@ class LidarView:
         r = np.where(hit, np.clip(r + self.rng.normal(0.0, LIDAR_NOISE_M, r.shape), 0.0,
                                   sc.range_max_m), r)
         dets = self.detector.detect(
-            r, sc.angle_min_rad, sc.angle_increment_rad, sc.range_max_m, tuple(ego)
+            r, sc.angle_min_rad, sc.angle_increment_rad, sc.range_max_m, tuple(ego),
+            self.tracker.predicted_centres(t_s),
         )
         from services.localization_bridge import ScanView
 
