@@ -14,11 +14,13 @@ from services.planner.raceline.overtake import OvertakeParams, corridor_path, pl
 from services.planner.raceline.planner import RacelinePlanner
 from services.planner.raceline.tracker import ReferenceLap
 from services.tools.bench.head_to_head import HeadToHeadOptions, race_seed
+from shared.car import CAR
 from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.simulator import SimulatorSettings
 from shared.config.vehicle import F1TENTH_GYM
 from shared.track import Track
 
+CAR_W = CAR.width_m
 PLANNER = PlannerSettings(raceline=RacelineSettings(line="min_curvature"))
 
 
@@ -225,3 +227,52 @@ def test_a_start_can_end_once_the_ego_has_passed_and_leads() -> None:
     r = race_seed(ego, StoppedCar(PLANNER), track, SimulatorSettings(), opts, seed=0)
     assert r.overtakes == 1 and r.stopped_at_lead and r.contacts == 0
     assert 12.0 < r.ego_distance_m < 0.5 * track.length_m
+
+
+def test_side_by_side_where_the_track_is_too_narrow_the_walls_give_way_not_the_car() -> None:
+    """Beside a car where the track leaves less than the plan's margins, the ego keeps its
+    side of the car: the bound the wall sets gives way, never the one the car sets (the
+    bounds were swapped: the target moved 0.15 m towards the car beside, into a contact)."""
+    ref = straight_line_lap(half_width_m=0.58)
+    line = ref.line
+    p = OvertakeParams()
+    clear = 0.5 * (p.ego_width_m + CAR_W) + p.margin_lateral_m
+    for e_e, v_o in ((-0.36, 3.9), (0.36, 3.9), (-0.36, 4.1)):
+        o = _ahead(line, 10.1, v_o)  # side by side, on the line
+        pred = predict_on_line(line, o, p.times(), 10.1)
+        plan = plan_around(ref, 10.0, e_e, [pred], e_e, p, v_e_mps=4.0)
+        assert plan.mode == "follow", plan
+        assert abs(plan.offset_m) >= clear - 1e-6 and plan.offset_m * e_e > 0.0, (e_e, plan)
+
+
+def _narrowing_lap(narrow_from_m: float, narrow_len_m: float = 3.0, hw_m: float = 0.55,
+                   length_m: float = 200.0, v: float = 4.0) -> ReferenceLap:
+    """A nearly straight line at `v` whose half-width is `hw_m` over ``[narrow_from_m,
+    narrow_from_m + narrow_len_m)`` and 1 m elsewhere."""
+    radius = length_m / (2 * math.pi)
+    n = 2000
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    xy = radius * np.column_stack([np.cos(t), np.sin(t)])
+    s = np.arange(n) * length_m / n
+    w = np.where((s >= narrow_from_m) & (s < narrow_from_m + narrow_len_m), hw_m, 1.0)
+    line = Track("narrowing", xy, w, w)
+    return ReferenceLap.from_path(line, np.full(n, 1.0 / radius), np.full(n, v), F1TENTH_GYM)
+
+
+def test_a_pass_keeps_slack_before_the_track_narrows() -> None:
+    """A pass predicted to come clear of the car just before the track narrows (no room
+    beside it there) is not started with ``pass_slack_s``: a car slower than its plan was
+    squeezed between the car and the wall there (Oschersleben, the lidar view). Well
+    before the narrowing the pass is taken either way."""
+    import dataclasses
+
+    def mode(narrow_from_m: float, slack_s: float) -> str:
+        ref = _narrowing_lap(narrow_from_m)
+        p = dataclasses.replace(OvertakeParams(), pass_slack_s=slack_s)
+        o = _ahead(ref.line, 12.5, 3.0)  # 1 m/s slower: beside from 1.8 s to 3.2 s
+        pred = predict_on_line(ref.line, o, p.times(), 12.5)
+        return plan_around(ref, 10.0, 0.0, [pred], 0.0, p, v_e_mps=4.0).mode
+
+    assert mode(22.5, 0.0) == "pass" and mode(22.5, 0.2) == "follow"
+    assert mode(26.0, 0.0) == "pass" and mode(26.0, 0.2) == "pass"
+    assert mode(150.0, 0.2) == "pass"

@@ -32,7 +32,10 @@ The plan of one tick is a lateral target ``d`` (right +) and a speed cap:
    times ``f / (1 + kappa e)`` per stage (``f`` of step 5; ``1 + kappa e`` the path's
    length per metre of line): the outside of a bend is longer, the inside shorter but
    slower. A candidate whose pass is not over within the horizon with that progress is
-   dropped; one whose beside stages grow with it is re-planned with both.
+   dropped; one whose beside stages grow with it is re-planned with both. The beside
+   stages are held ``pass_slack_s`` longer: a car slower than its plan (a pass begun below
+   the line's speed) comes clear later, and where the track narrows there it was squeezed
+   between the car and the wall.
 4. No feasible pass: **follow** (``_follow``), ready to pass. Laterally: on its side of
    any car it overlaps now (never squeezed into it); else beside the line of the nearest
    car ahead (``W + m_lat`` off it) on the side with room for the longest, when that is at
@@ -93,6 +96,8 @@ class OvertakeParams:
             ego drops back this much slower than it [m/s].
         pass_extra_m: passing, the target keeps up to this much more than ``W + m_lat``
             from the car beside where the corridor has the room [m].
+        pass_slack_s: a pass keeps the room beside each car this much longer than the
+            ego's predicted progress needs (step 3b) [s].
         ego_length_m, ego_width_m: the ego's footprint [m].
     """
 
@@ -103,7 +108,7 @@ class OvertakeParams:
     gap_time_s: float = 0.08
     gap_min_m: float = 0.2
     gain_gap_per_s: float = 1.5
-    wall_margin_m: float = 0.04
+    wall_margin_m: float = 0.06
     lateral_rate_mps: float = 0.7
     lateral_lag_s: float = 0.15
     change_weight: float = 0.5
@@ -115,6 +120,7 @@ class OvertakeParams:
     ready_gap_m: float = 0.05
     drop_back_mps: float = 0.5
     pass_extra_m: float = 0.05
+    pass_slack_s: float = 0.2
     ego_length_m: float = CAR.length_m
     ego_width_m: float = CAR.width_m
 
@@ -282,6 +288,7 @@ def plan_around(
         if e_e_m > hi_track[0]:
             hi_track = np.maximum(hi_track, lo_reach)
         kappa = np.asarray(ref.at("kappa", s_e), dtype=float)
+        slack = max(0, round(p.pass_slack_s / p.stage_s))
 
         def bounds(sides: tuple[int, ...], by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             lo, hi = lo_track.copy(), hi_track.copy()
@@ -311,11 +318,13 @@ def plan_around(
             s_p = _progress_on(s_e, kappa, path, p)
             ds_p = (np.stack([o.s_m for o in opponents]) - s_p[None, :] + 0.5 * L_line) % (
                 L_line) - 0.5 * L_line
-            beside_p = np.abs(ds_p) < beside_m
+            # ... and the room beside them held ``pass_slack_s`` longer (the ego comes
+            # clear later than predicted when it is slower than its plan)
+            beside_p = _hold(np.abs(ds_p) < beside_m, slack) | beside
             if beside_p[:, -1].any():
                 continue
             if (beside_p & ~beside).any():
-                lo, hi = bounds(sides, beside_p | beside)
+                lo, hi = bounds(sides, beside_p)
                 path = corridor_path(e_e_m, lo, hi, t, p)
                 if path is None:
                     continue
@@ -351,6 +360,15 @@ def plan_around(
         return OvertakePlan(d, cap, _curve_factor(ref, s_e, path, p), mode, ids)
     return _follow(ref, s_e, e_e_m, ds, e_o, clear, beside_m, near, length, width,
                    lo_track, hi_track, t, look, opponents, ids, p)
+
+
+def _hold(mask: np.ndarray, n: int) -> np.ndarray:
+    """(J, K) bool: `mask` (J, K) held `n` stages longer (stage k is set when any of the
+    stages k - n .. k is)."""
+    out = mask.copy()
+    for i in range(1, n + 1):
+        out[:, i:] |= mask[:, :-i]
+    return out
 
 
 def _progress_on(
@@ -402,13 +420,15 @@ def _follow(
     J = len(opponents)
     lo, hi = lo_track.copy(), hi_track.copy()
     overlapping = False
+    # a clearance the ego misses now it must regain at its lateral rate (as a pass does)
+    away = p.lateral_rate_mps * np.maximum(t - p.lateral_lag_s, 0.0)
     for j in range(J):
         if abs(ds[j, 0]) < beside_m[j, 0]:
             overlapping = True
             if e_e >= e_o[j, 0]:
-                lo = np.maximum(lo, e_o[j] + clear[j, 0])
+                lo = np.maximum(lo, np.minimum(e_o[j] + clear[j, 0], e_e + away))
             else:
-                hi = np.minimum(hi, e_o[j] - clear[j, 0])
+                hi = np.minimum(hi, np.maximum(e_o[j] - clear[j, 0], e_e - away))
     target = 0.0
     ahead = [j for j in range(J) if near[j].any() and ds[j, 0] > 0.0]
     if not overlapping and ahead and p.ready_time_s > 0.0:
@@ -431,9 +451,9 @@ def _follow(
             target = float(e_ready[0])
     lo_t, hi_t = lo - target, hi - target
     path = corridor_path(e_e - target, lo_t, hi_t, t, p)
-    if path is None:  # the walls give way first
-        path = corridor_path(e_e - target, lo_t - 10.0 * (lo > lo_track),
-                             hi_t + 10.0 * (hi < hi_track), t, p)
+    if path is None:  # the walls give way first: the bounds the cars did not tighten
+        path = corridor_path(e_e - target, lo_t - 10.0 * (lo <= lo_track),
+                             hi_t + 10.0 * (hi >= hi_track), t, p)
     path = np.full(len(t), e_e) if path is None else path + target
     d = float(path[look])
     cap = math.inf
