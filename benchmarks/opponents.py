@@ -98,7 +98,9 @@ def main(argv: list[str] | None = None) -> int:
             beams_on = int(np.sum(seen < empty - 1e-3))
             r = _noisy(seen.astype(float), rng, a.noise, rmax)
             t0, c0 = time.perf_counter(), time.process_time()
-            dets = det.detect(r, sc.angle_min_rad, sc.angle_increment_rad, rmax, tuple(ego))
+            tracked = tracker.predicted_centres(t)  # as the bridge's feed does
+            dets = det.detect(r, sc.angle_min_rad, sc.angle_increment_rad, rmax, tuple(ego),
+                              tracked)
             tracks = tracker.update(t, [(d.x_m, d.y_m, d.yaw_rad) for d in dets])
             cost_ms.append(1e3 * (time.perf_counter() - t0))
             cpu_ms.append(1e3 * (time.process_time() - c0))
@@ -111,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
                 sc.angle_increment_rad,
                 rmax,
                 tuple(ego),
+                tracked,  # the car gone, the tracks' places left: no wall points there
             )
             fp_empty += len(e_dets)
             dist = math.hypot(opp[0] - ego[0], opp[1] - ego[1])

@@ -185,9 +185,10 @@ def fit_car_box(
     sizes = (length, width) if long_i == 0 else (width, length)
     mid = np.zeros(2)
     # a cut end continues the scan's run along the face it lies on: that axis, that way
-    # (the run over the last ``CUT_RUN_M`` of points: at close range the last few beams lie
-    # millimetres apart and their run is the range noise's, which flipped the box to the
-    # sensor's side of a car seen from beside)
+    # (the principal direction of the points within ``CUT_RUN_M`` of the end: at close range
+    # the last few beams lie millimetres apart and their run is the range noise's, which
+    # flipped the box to the sensor's side of a car seen from beside; a window in beam order
+    # reached round the corner of a short cluster instead)
     run = np.array([_end_run(p), _end_run(p[::-1])]) @ ax.T  # (2 ends, 2 axes)
     cut_axis = np.argmax(np.abs(run), axis=1)
     cut_sign = run[np.arange(2), cut_axis]
@@ -217,12 +218,17 @@ CUT_RUN_M = 0.08
 
 
 def _end_run(p: np.ndarray) -> np.ndarray:
-    """(2,) [m]: the run of the points `p` (n, 2) into their end ``p[0]``: ``p[0] - p[j]``
-    with ``p[j]`` the first point at least ``CUT_RUN_M`` from it (else the last point)."""
-    d = np.hypot(*(p - p[0]).T)
-    far = np.flatnonzero(d >= CUT_RUN_M)
-    j = int(far[0]) if far.size else p.shape[0] - 1
-    return p[0] - p[j]
+    """(2,) [m]: the run of the points `p` (n, 2) into their end ``p[0]``, along the face
+    it lies on: the principal direction of the points within ``CUT_RUN_M`` of it, pointing
+    to it (fewer than three there: from the third point on to the end)."""
+    end = p[0]
+    near = p[np.hypot(*(p - end).T) <= CUT_RUN_M]
+    if near.shape[0] < 3:
+        return end - p[min(3, p.shape[0] - 1)]
+    mean = near.mean(axis=0)
+    _, vecs = np.linalg.eigh(np.cov((near - mean).T))
+    u = vecs[:, -1]
+    return u * float((end - mean) @ u)
 
 
 class OpponentDetector:
@@ -395,7 +401,15 @@ class ScanView:
 class TrackerParams:
     """Settings of the tracker (module docstring); ``max_coast_s`` [s]: the longest a
     confirmed track the scans cannot see coasts since its last detection; ``merge_m`` [m]:
-    closer than this, a detection and a track, or two tracks, are one car."""
+    closer than this, a detection and a track, or two tracks, are one car;
+    ``tentative_max_misses``: a track not yet confirmed is dropped after more scans than
+    this in a row without a detection (its gate grows with every miss, and a stale one
+    took a misfit box 0.25 m off for its third hit); ``confirm_speed_std_mps`` [m/s]: a
+    track is confirmed only once its speed is known this well too (the largest standard
+    deviation of its velocity), not on its hits alone; ``yaw_gate_rad`` [rad],
+    ``yaw_gate_speed_mps`` [m/s]: a box's axis whose direction is off a confirmed track's
+    motion by more than this (once it moves faster than the speed) is not used
+    (``_correct``)."""
 
     accel_std_mps2: float = 8.0
     meas_std_m: float = 0.02
@@ -403,6 +417,10 @@ class TrackerParams:
     gate_chi2: float = 13.8
     lateral_speed_std_mps: float = 0.15
     confirm_hits: int = 3
+    tentative_max_misses: int = 2
+    confirm_speed_std_mps: float = 1.0
+    yaw_gate_rad: float = 0.5
+    yaw_gate_speed_mps: float = 1.0
     max_misses: int = 8
     max_coast_s: float = 1.0
     merge_m: float = CAR.width_m
@@ -555,7 +573,8 @@ class OpponentTracker:
                     continue  # coasted out of sight for too long
                 if not hidden:
                     tr.misses += 1
-            if tr.misses <= p.max_misses:
+            limit = p.max_misses if tr.confirmed else min(p.max_misses, p.tentative_max_misses)
+            if tr.misses <= limit:
                 kept.append(tr)
         self.tracks = self._coalesce(kept)
         for j in range(n_d):
@@ -566,7 +585,9 @@ class OpponentTracker:
                                                  seen_t_s=float(t_s)))
                 self._next_id += 1
         for tr in self.tracks:
-            tr.confirmed = tr.confirmed or tr.hits >= p.confirm_hits
+            tr.confirmed = tr.confirmed or (
+                tr.hits >= p.confirm_hits
+                and float(np.linalg.eigvalsh(tr.P[2:, 2:])[-1]) <= p.confirm_speed_std_mps**2)
         return [tr for tr in self.tracks if tr.confirmed]
 
     def _coalesce(self, tracks: list[OpponentTrack]) -> list[OpponentTrack]:
@@ -588,12 +609,22 @@ class OpponentTracker:
 
     def _correct(self, tr: OpponentTrack, z: np.ndarray, yaw: float | None = None) -> None:
         """Kalman correction by position `z` (2,) [m] and, with `yaw` [rad], the zero
-        velocity across the car's axis (Joseph form)."""
+        velocity across the car's axis (Joseph form). The axis is used only where it agrees
+        with the track's motion (within ``yaw_gate_rad``, modulo pi, once the track moves
+        faster than ``yaw_gate_speed_mps``): a box fitted the wrong way round (a car seen
+        from behind at 1 m, a corner split off) turned a confirmed track's velocity by 90
+        degrees, and the car behind braked for a car crossing its path."""
         H, R = self._H, self._R
+        p = self.params
+        vx, vy = float(tr.x[2]), float(tr.x[3])
+        if yaw is not None and tr.confirmed and math.hypot(vx, vy) > p.yaw_gate_speed_mps:
+            off = abs(math.remainder(yaw - math.atan2(vy, vx), math.pi))
+            if off > p.yaw_gate_rad:
+                yaw = None
         if yaw is not None:
             lat = np.array([[0.0, 0.0, -math.sin(yaw), math.cos(yaw)]])
             H = np.vstack([H, lat])
-            R = np.diag([R[0, 0], R[1, 1], self.params.lateral_speed_std_mps**2])
+            R = np.diag([R[0, 0], R[1, 1], p.lateral_speed_std_mps**2])
             z = np.array([z[0], z[1], 0.0])
         S = H @ tr.P @ H.T + R
         K = tr.P @ H.T @ np.linalg.inv(S)

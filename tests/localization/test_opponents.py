@@ -357,3 +357,67 @@ def test_a_car_seen_from_beside_at_close_range_is_not_flipped_to_the_sensor_s_si
         assert box is not None
         wrong += box[1] > face_y  # the centre on the sensor's side of the face
     assert wrong == 0
+
+
+def test_a_short_cluster_cut_by_a_wall_is_anchored_on_its_seen_faces() -> None:
+    """The right half of a car's rear face and one point of its side, the rest hidden by a
+    bend's inner wall (the cluster's last end cut): the cut runs along the rear face, so the
+    box stands on the rear face and the side, not 0.42 m behind the car (a run taken over
+    beams in order reached round the corner to the side point: the cut was put on the long
+    axis)."""
+    rng = np.random.default_rng(8)
+    sensor = (-1.135, -0.16)  # behind the car, in its frame
+    for _ in range(20):
+        ys = np.linspace(-0.155, -0.084, 20)
+        rear = np.column_stack([-0.29 + rng.normal(0.0, 0.01, ys.size), ys])
+        pts = np.vstack([[-0.133, -0.155], rear])
+        box = fit_car_box(pts, sensor, DetectorParams(), heading_hint_rad=0.0,
+                          occluded_ends=(False, True))
+        assert box is not None
+        assert math.hypot(box[0], box[1]) < 0.12, box  # (it was 0.42 m)
+
+
+def test_a_tentative_track_dies_after_its_second_miss() -> None:
+    """A tentative track's gate grows with every miss; a stale one took a misfit box 0.25 m
+    off for its third hit. It now ends after ``tentative_max_misses`` misses in a row."""
+    tr = OpponentTracker()
+    tr.update(0.0, [(3.0, 0.0)])
+    tr.update(0.025, [])
+    tr.update(0.05, [])
+    assert len(tr.tracks) == 1  # two misses: kept
+    tr.update(0.075, [])
+    assert tr.tracks == []
+    # a confirmed track coasts through the same gap
+    conf = OpponentTracker()
+    for i in range(4):
+        conf.update(0.025 * i, [(3.0 + 0.1 * i, 0.0)])
+    for i in range(4, 8):
+        conf.update(0.025 * i, [])
+    assert len(conf.tracks) == 1 and conf.tracks[0].confirmed
+
+
+def test_a_track_is_confirmed_once_its_speed_is_known() -> None:
+    hits = [(0.025 * i, [(3.0 + 0.1 * i, 0.0)]) for i in range(3)]
+    loose = OpponentTracker()
+    tight = OpponentTracker(TrackerParams(confirm_speed_std_mps=0.05))
+    for t, d in hits:
+        loose.update(t, d)
+        tight.update(t, d)
+    assert loose.tracks[0].confirmed  # 3 hits at 40 Hz: its speed within 1 m/s
+    assert not tight.tracks[0].confirmed and tight.tracks[0].hits == 3
+
+
+@pytest.mark.parametrize("gate_rad, turned", [(0.5, False), (4.0, True)])
+def test_a_box_axis_across_a_moving_track_leaves_its_velocity_alone(
+    gate_rad: float, turned: bool
+) -> None:
+    """A box fitted the wrong way round (its axis across the car's motion) would turn the
+    velocity through the 'no speed across the car' pseudo-measurement; beyond
+    ``yaw_gate_rad`` of a moving confirmed track's motion the axis is not used."""
+    tr = OpponentTracker(TrackerParams(yaw_gate_rad=gate_rad))
+    for i in range(12):
+        tr.update(0.025 * i, [(3.0 * 0.025 * i, 0.0, 0.0)])  # 3 m/s along x, axis along x
+    t = 0.025 * 12
+    tr.update(t, [(3.0 * t, 0.0, math.pi / 2)])  # the axis across
+    vx, vy = tr.tracks[0].velocity
+    assert (vx < 2.0) == turned, (vx, vy)
