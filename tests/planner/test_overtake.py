@@ -276,3 +276,35 @@ def test_a_pass_keeps_slack_before_the_track_narrows() -> None:
     assert mode(22.5, 0.0) == "pass" and mode(22.5, 0.2) == "follow"
     assert mode(26.0, 0.0) == "pass" and mode(26.0, 0.2) == "pass"
     assert mode(150.0, 0.2) == "pass"
+
+
+def test_back_towards_the_line_the_offset_eases_in() -> None:
+    """Nobody near any more, the offset returns to the line at most at the lateral rate and
+    slower as it nears it (a first-order lag, ``RETURN_TAU_S``): at the full rate the car
+    reached the line 0.17 rad across it and ran on over an apex's wall."""
+    from services.planner.raceline.planner import RETURN_TAU_S
+
+    track = stadium(half_width_m=1.0)
+    ego = RacelinePlanner(track, PLANNER, vehicle=F1TENTH_GYM)
+    line = ego.raceline.track
+    x, y = (float(v) for v in line.point_at(5.0))
+    yaw = float(line.heading_at(5.0))
+    lr = F1TENTH_GYM.lr_m
+    rx, ry = x - lr * math.cos(yaw), y - lr * math.sin(yaw)
+    ego.set_opponents([])
+    ego.step(rx, ry, yaw)
+    lo, hi = ego._offset_room(ego._s_line)  # inside the track ahead (kept there)
+    ego._offset = 0.3 if hi >= 0.3 else -0.3  # where a pass left it
+    assert lo < ego._offset < hi
+    offsets = [ego._offset]
+    for _ in range(120):
+        ego.step(rx, ry, yaw)
+        offsets.append(ego._offset)
+    sign = math.copysign(1.0, offsets[0])
+    offsets = [sign * o for o in offsets]
+    steps = -np.diff(offsets)
+    dt = PLANNER.dt_s
+    assert np.all(steps >= 0.0) and steps.max() <= 0.7 * dt + 1e-9
+    near = [st for o, st in zip(offsets, steps, strict=False) if 0.0 < o < 0.05]
+    assert near and max(near) <= 0.05 / RETURN_TAU_S * dt + 1e-9  # slow near the line
+    assert offsets[-1] == 0.0  # and on it in the end

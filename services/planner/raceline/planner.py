@@ -104,6 +104,12 @@ FEED_FORWARD_SCALES = (0.4, 0.55, 0.7, 0.85, 1.0)
 SLOW_SPEED_MPS = 0.05
 #: How far ahead the offset from the line is kept inside the track [s of the line's speed].
 OFFSET_ROOM_S = 1.0
+#: Back towards the line the offset closes as a first-order lag of this time constant below
+#: the lateral rate [s]: at the full rate (0.7 m/s) it reached the line with the car 0.17
+#: rad across it, and ran on over the apex's wall (Oschersleben, an opponent, the lidar).
+RETURN_TAU_S = 0.35
+#: An offset below this is the line [m].
+OFFSET_ZERO_M = 1e-3
 #: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
 MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
 
@@ -632,8 +638,12 @@ class RacelinePlanner:
             # line at its rate (a fast swing back turns the car's corners over the wall)
             out = abs(plan.offset_m) > abs(self._offset)
             rate = self.overtake.lateral_rate_mps * (2.0 if out else 1.0)
+            if not out:  # ... and easing in as it nears the line
+                rate = min(rate, abs(plan.offset_m - self._offset) / RETURN_TAU_S)
             step = rate * self.settings.dt_s
             self._offset += min(max(plan.offset_m - self._offset, -step), step)
+            if plan is FREE and abs(self._offset) < OFFSET_ZERO_M:
+                self._offset = 0.0
             if plan is FREE:  # nobody near: back inside the track ahead (a pass or a
                 # follow plans its corridor inside it itself)
                 lo, hi = self._offset_room(hint if hint is not None else 0.0)
