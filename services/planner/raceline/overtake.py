@@ -357,6 +357,8 @@ def plan_around(
         d = min(max(d_k, float(lo_track[: k + 1].max())), float(hi_track[: k + 1].min()))
         cap = _cap_now(ds, e_o, e_e_m, width, length, opponents, p)
         mode = "pass" if np.max(np.abs(path)) > 0.02 else "line"
+        if mode == "line":  # no move needed: no extra room either (it biased the line
+            d = 0.0  # to one side by pass_extra_m, flickering with the plans around it)
         return OvertakePlan(d, cap, _curve_factor(ref, s_e, path, p), mode, ids)
     return _follow(ref, s_e, e_e_m, ds, e_o, clear, beside_m, near, length, width,
                    lo_track, hi_track, t, look, opponents, ids, p)

@@ -647,7 +647,9 @@ class RacelinePlanner:
             if plan is FREE:  # nobody near: back inside the track ahead (a pass or a
                 # follow plans its corridor inside it itself)
                 lo, hi = self._offset_room(hint if hint is not None else 0.0)
-                self._offset = min(max(self._offset, lo), hi)
+                # (never off the line for it: where the line runs nearer a wall than the
+                # room, the bound left the offset jumping round it and never back to 0)
+                self._offset = min(max(self._offset, min(lo, 0.0)), max(hi, 0.0))
         tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset,
                                   speed_scale=self.speed_scale)
         self._s_line = tc.s_m
