@@ -137,7 +137,8 @@ class OpponentFeed:
                                      self.tracker.predicted_centres(t_s))
         view = ScanView(ranges_m, angle_min_rad, angle_increment_rad,
                         self.settings.max_range_m, sensor)
-        confirmed = self.tracker.update(t_s, [(d.x_m, d.y_m, d.yaw_rad) for d in found], view)
+        confirmed = self.tracker.update(t_s, [(d.x_m, d.y_m, d.yaw_rad) for d in found], view,
+                                        self.detector.free_at)
         alive = {tr.track_id for tr in self.tracker.tracks}
         for k in [k for k in self._born if k not in alive]:
             del self._born[k]

@@ -421,3 +421,23 @@ def test_a_box_axis_across_a_moving_track_leaves_its_velocity_alone(
     tr.update(t, [(3.0 * t, 0.0, math.pi / 2)])  # the axis across
     vx, vy = tr.tracks[0].velocity
     assert (vx < 2.0) == turned, (vx, vy)
+
+
+def test_a_track_that_coasts_into_a_wall_is_dropped(setup) -> None:
+    """No car is inside a wall: a track coasting through a bend at constant velocity
+    drifted out through the outer wall, 'hidden' behind it and so kept, and the car behind
+    planned round a car 0.5-1.4 m off the track (paperlike, the lidar view)."""
+    _sc, det, track = setup
+    x, y = (float(v) for v in track.point_at(5.0))
+    assert det.free_at(x, y)
+    yaw = float(track.heading_at(5.0))
+    wx, wy = x - 2.0 * math.sin(yaw), y + 2.0 * math.cos(yaw)  # 2 m to the left: a wall
+    assert not det.free_at(wx, wy) and not det.free_at(1e6, 1e6)
+    tr = OpponentTracker()
+    wall_x = 3.5
+    for i in range(6):  # 3 m/s along x, confirmed
+        tr.update(0.025 * i, [(3.0 + 0.075 * i, 0.0)], free=lambda px, py: px < wall_x)
+    assert len(tr.tracks) == 1 and tr.tracks[0].confirmed
+    for i in range(6, 14):  # no detections: it coasts on, through the wall at x = 3.5
+        tr.update(0.025 * i, [], free=lambda px, py: px < wall_x)
+    assert tr.tracks == [] and tr.walled == 1

@@ -222,7 +222,8 @@ class LidarView:
         from services.localization_bridge import ScanView
 
         view = ScanView(r, sc.angle_min_rad, sc.angle_increment_rad, sc.range_max_m, tuple(ego))
-        tracks = self.tracker.update(t_s, [(d.x_m, d.y_m, d.yaw_rad) for d in dets], view)
+        tracks = self.tracker.update(t_s, [(d.x_m, d.y_m, d.yaw_rad) for d in dets], view,
+                                     self.detector.free_at)
         near = [tr for tr in tracks
                 if math.hypot(tr.x[0] - others[0, 0], tr.x[1] - others[0, 1]) <= MATCH_M]
         if near and math.hypot(*(others[0, :2] - ego[:2])) <= 5.0:
