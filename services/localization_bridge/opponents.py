@@ -213,6 +213,8 @@ def fit_car_box(
     return float(xy[0]), float(xy[1]), yaw
 
 
+#: Deeper than this inside a wall of the map no car's centre can be (``free_at``) [m].
+WALL_DEPTH_M = 0.1
 #: The run of a cluster's end is taken over its last points within this distance [m].
 CUT_RUN_M = 0.08
 
@@ -280,14 +282,23 @@ class OpponentDetector:
         return out
 
     def free_at(self, x_m: float, y_m: float) -> bool:
-        """Whether (`x_m`, `y_m`) [m] lies on a free cell of the map (a car's centre can be
-        there; inside a wall or off the map it cannot)."""
+        """Whether a car's centre can be at (`x_m`, `y_m`) [m]: with the track, no more than
+        half a car's width beyond its boundaries (a car that left the track is still a
+        car); without it, not deeper than ``WALL_DEPTH_M`` inside a wall of the map, nor off
+        the map (a real map's stray occupied pixels inside the track are no wall: a car's
+        track there was dropped)."""
+        if self.track is not None:
+            s, e = self.track.project(np.array([x_m, y_m]))
+            w_r, w_l = (float(np.ravel(v)[0]) for v in self.track.interp_width(
+                np.array([float(s)])))
+            half = 0.5 * self.params.width_m
+            return -(w_l + half) <= float(e) <= w_r + half
         gx, gy = to_grid_frame(self.grid, np.array([x_m]), np.array([y_m]))
         r = float(self.grid.resolution_m)
         col, row = int(np.floor(gx[0] / r)), int(np.floor(gy[0] / r))
         if not (0 <= col < self._cols and 0 <= row < self._rows):
             return False
-        return not bool(self._blocked[row, col])
+        return not (bool(self._blocked[row, col]) and self._dist[row, col] > WALL_DEPTH_M)
 
     def detect(
         self,
@@ -534,9 +545,9 @@ class OpponentTracker:
                 Detections with a non-finite value are dropped and counted (``dropped``).
             view: what the scan could see (None: everything): a confirmed track it could
                 not see counts no miss, for at most ``max_coast_s`` since its detection.
-            free: whether a point [m] is free space on the map (``OpponentDetector.free_at``;
-                None: everywhere): a track whose centre is not is dropped (counted in
-                ``walled``). No car is inside a wall; a track coasting through a bend at
+            free: whether a car's centre can be at a point [m] (``OpponentDetector.free_at``:
+                on the track or within half a car of it; None: anywhere): a track whose centre
+                cannot is dropped (counted in ``walled``). No car is inside a wall; a track coasting through a bend at
                 constant velocity drifted out through the outer wall, hidden "behind" it and
                 so kept, and the car behind planned round a car 0.5-1.4 m off the track.
 
