@@ -547,9 +547,9 @@ class OpponentTracker:
                 not see counts no miss, for at most ``max_coast_s`` since its detection.
             free: whether a car's centre can be at a point [m] (``OpponentDetector.free_at``:
                 on the track or within half a car of it; None: anywhere): a track whose centre
-                cannot is dropped (counted in ``walled``). No car is inside a wall; a track coasting through a bend at
-                constant velocity drifted out through the outer wall, hidden "behind" it and
-                so kept, and the car behind planned round a car 0.5-1.4 m off the track.
+                cannot is dropped (counted in ``walled``). A track coasting through a bend
+                at constant velocity drifted out through the outer wall, hidden "behind" it
+                and so kept, and the car behind planned round a car 0.5-1.4 m off the track.
 
         Returns:
             the confirmed tracks after the update.
