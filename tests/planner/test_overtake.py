@@ -278,21 +278,28 @@ def test_a_pass_keeps_slack_before_the_track_narrows() -> None:
     assert mode(150.0, 0.2) == "pass"
 
 
-def test_back_towards_the_line_the_offset_eases_in() -> None:
-    """Nobody near any more, the offset returns to the line at most at the lateral rate and
-    slower as it nears it (a first-order lag, ``RETURN_TAU_S``): at the full rate the car
-    reached the line 0.17 rad across it and ran on over an apex's wall."""
-    from services.planner.raceline.planner import RETURN_TAU_S
-
+def _alone_on_the_stadium_line() -> tuple[RacelinePlanner, tuple[float, float, float]]:
+    """A raceline planner on the stadium with nobody near, after one step from its line's
+    rear-axle pose 5 m in (returned: the planner and that pose [m, m, rad])."""
     track = stadium(half_width_m=1.0)
     ego = RacelinePlanner(track, PLANNER, vehicle=F1TENTH_GYM)
     line = ego.raceline.track
     x, y = (float(v) for v in line.point_at(5.0))
     yaw = float(line.heading_at(5.0))
     lr = F1TENTH_GYM.lr_m
-    rx, ry = x - lr * math.cos(yaw), y - lr * math.sin(yaw)
+    pose = (x - lr * math.cos(yaw), y - lr * math.sin(yaw), yaw)
     ego.set_opponents([])
-    ego.step(rx, ry, yaw)
+    ego.step(*pose)
+    return ego, pose
+
+
+def test_back_towards_the_line_the_offset_eases_in() -> None:
+    """Nobody near any more, the offset returns to the line at most at the lateral rate and
+    slower as it nears it (a first-order lag, ``RETURN_TAU_S``): at the full rate the car
+    reached the line 0.17 rad across it and ran on over an apex's wall."""
+    from services.planner.raceline.planner import RETURN_TAU_S
+
+    ego, (rx, ry, yaw) = _alone_on_the_stadium_line()
     lo, hi = ego._offset_room(ego._s_line)  # inside the track ahead (kept there)
     ego._offset = 0.3 if hi >= 0.3 else -0.3  # where a pass left it
     assert lo < ego._offset < hi
@@ -315,15 +322,7 @@ def test_where_the_line_runs_nearer_a_wall_than_the_room_the_offset_still_ends_o
     line for it: where the line runs nearer a wall than the offset's room (an apex), the
     bound left the offset jumping round it and never back to 0 (the car weaved and left the
     track 101 times in 10 two-car starts on map416)."""
-    track = stadium(half_width_m=1.0)
-    ego = RacelinePlanner(track, PLANNER, vehicle=F1TENTH_GYM)
-    line = ego.raceline.track
-    x, y = (float(v) for v in line.point_at(5.0))
-    yaw = float(line.heading_at(5.0))
-    lr = F1TENTH_GYM.lr_m
-    rx, ry = x - lr * math.cos(yaw), y - lr * math.sin(yaw)
-    ego.set_opponents([])
-    ego.step(rx, ry, yaw)
+    ego, (rx, ry, yaw) = _alone_on_the_stadium_line()
     ego._offset_room = lambda s_m: (0.05, 0.6)  # the line itself outside the room
     ego._offset = 0.3
     for _ in range(200):
