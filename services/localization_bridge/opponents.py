@@ -288,11 +288,8 @@ class OpponentDetector:
         the map (a real map's stray occupied pixels inside the track are no wall: a car's
         track there was dropped)."""
         if self.track is not None:
-            s, e = self.track.project(np.array([x_m, y_m]))
-            w_r, w_l = (float(np.ravel(v)[0]) for v in self.track.interp_width(
-                np.array([float(s)])))
-            half = 0.5 * self.params.width_m
-            return -(w_l + half) <= float(e) <= w_r + half
+            inside = self.track.is_inside(np.array([x_m, y_m]), -0.5 * self.params.width_m)
+            return bool(np.ravel(inside)[0])
         gx, gy = to_grid_frame(self.grid, np.array([x_m]), np.array([y_m]))
         r = float(self.grid.resolution_m)
         col, row = int(np.floor(gx[0] / r)), int(np.floor(gy[0] / r))
