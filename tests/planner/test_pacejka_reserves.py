@@ -252,12 +252,13 @@ def test_joining_the_line_slowly_steers_for_the_speed_it_joins_at() -> None:
             float(y) + off * math.cos(h) - CAR.lr_m * math.sin(h), h)
     asked = []
 
-    def slow(cx, cy, yaw, s_m, speed_mps, line_rad):
+    def slow(cx, cy, yaw, s_m, speed_mps, line_rad, slope=0.0):
         asked.append((speed_mps, line_rad))
         return 0.0123
 
     planner._slow_steering = slow
     planner._s_line = s
+    planner._join_pending = False  # the line directly, no blended join (``raceline.join``)
     res = planner.step(*pose)
     assert planner._joining and res.command.speed_mps <= JOIN_SPEED_MPS
     assert asked == [(res.command.speed_mps, pytest.approx(asked[0][1]))]

@@ -55,6 +55,8 @@ from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettin
 from services.planner.mintime.requests import min_time_settings, planning_vehicle
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
 from services.planner.opponents import OpponentEstimate, predict_on_line
+from services.planner.raceline.join import MAX_SLOPE as MAX_JOIN_SLOPE
+from services.planner.raceline.join import LineJoin
 from services.planner.raceline.overtake import FREE, OvertakeParams, OvertakePlan, plan_around
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import (
@@ -110,6 +112,15 @@ OFFSET_ROOM_S = 1.0
 RETURN_TAU_S = 0.35
 #: An offset below this is the line [m].
 OFFSET_ZERO_M = 1e-3
+#: The join's blended path (``raceline.join``): its steering is fed forward this far ahead
+#: of the car [m] (the pure delays at racing speed), its speed keeps this share of the
+#: tyres' grip on its tightest curvature over this far ahead [m].
+JOIN_LEAD_M = 0.3
+JOIN_GRIP_SHARE = 0.8
+JOIN_LOOK_M = 1.5
+#: ... and bends at most as tight as this share of the steering limit turns the car.
+JOIN_STEER_SHARE = 0.8
+GRAVITY_MPS2 = 9.81
 #: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
 MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
 
@@ -493,6 +504,10 @@ class RacelinePlanner:
         self._last_xy: tuple[float, float] | None = None  #: the last pose's position [m]
         self._offset = 0.0  #: the lateral offset the tracker drives, ramped [m]
         self.plan = FREE
+        #: the join onto the line in progress (``raceline.join``), and whether the next
+        #: step starts one (the start, a move, a hand-back from the recovery rule)
+        self._join: LineJoin | None = None
+        self._join_pending = True
 
     def set_opponents(self, opponents: Sequence[OpponentEstimate]) -> None:
         """The other cars for the next steps (an empty list: race the line alone)."""
@@ -529,7 +544,14 @@ class RacelinePlanner:
         ]
 
     def _slow_steering(
-        self, cx: float, cy: float, yaw: float, hint: float, speed_mps: float, line_rad: float
+        self,
+        cx: float,
+        cy: float,
+        yaw: float,
+        hint: float,
+        speed_mps: float,
+        line_rad: float,
+        slope: float = 0.0,
     ) -> float:
         """Steering [rad] for a car held at `speed_mps`, below the line's: the line's own
         feed-forward and reference yaw are for its speed (slower, the car needs less of the
@@ -540,11 +562,13 @@ class RacelinePlanner:
         ratio = min(max(speed_mps / v_p, FEED_FORWARD_SCALES[0]), 1.0)
         scales = FEED_FORWARD_SCALES
         i = min(int(np.searchsorted(scales, ratio, side="right")) - 1, len(scales) - 2)
-        lo = self._slow_trackers[i].command(cx, cy, yaw, hint, offset_m=self._offset)
+        lo = self._slow_trackers[i].command(cx, cy, yaw, hint, offset_m=self._offset,
+                                            offset_slope=slope)
         if i + 1 == len(scales) - 1:
             hi_rad = line_rad
         else:
-            hi = self._slow_trackers[i + 1].command(cx, cy, yaw, hint, offset_m=self._offset)
+            hi = self._slow_trackers[i + 1].command(cx, cy, yaw, hint, offset_m=self._offset,
+                                                    offset_slope=slope)
             hi_rad = hi.steering_rad
         w = (ratio - scales[i]) / (scales[i + 1] - scales[i])
         return (1.0 - w) * lo.steering_rad + w * hi_rad
@@ -632,8 +656,25 @@ class RacelinePlanner:
             self._on_line = False
             self._handover.start(self._speed_cmd)
             self._joining = ramps_from_rest(self.vehicle)
+            self._join_pending = True
+        if self._join_pending:  # from where the car is onto the line, smoothly
+            self._join_pending = False
+            self._join = self._start_join(cx, cy, hint)
         plan = self.plan = self._plan_around(cx, cy, hint)
-        if plan is not FREE or self._offset != 0.0:  # ramp the offset towards the plan's:
+        slope = join_steer = 0.0
+        join_cap = math.inf
+        if self._join is not None:
+            s_j = self.tracker.project(cx, cy, hint)[0]
+            if plan is not FREE or self._join.done(s_j):  # a pass ramps on from here
+                self._join = None
+                if plan is FREE:
+                    self._offset = 0.0
+            else:
+                self._offset = self._join.offset(s_j)
+                slope = self._join.slope(s_j)
+                join_steer, join_cap = self._join_feed(s_j)
+        if self._join is None and (plan is not FREE or self._offset != 0.0):
+            # ramp the offset towards the plan's:
             # out twice as fast as the plan assumes (the car lags it), back towards the
             # line at its rate (a fast swing back turns the car's corners over the wall)
             out = abs(plan.offset_m) > abs(self._offset)
@@ -651,16 +692,17 @@ class RacelinePlanner:
                 # room, the bound left the offset jumping round it and never back to 0)
                 self._offset = min(max(self._offset, min(lo, 0.0)), max(hi, 0.0))
         tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset,
-                                  speed_scale=self.speed_scale)
+                                  speed_scale=self.speed_scale, offset_slope=slope)
         self._s_line = tc.s_m
         self._adapt_grip(tc.e_m - self._offset)  # an overtake's offset is no slide
         speed = tc.speed_mps
         steering = tc.steering_rad
         if plan is not FREE:
             speed = min(speed * plan.speed_factor, plan.speed_cap_mps)
-        speed = min(max(speed, self._speed_lim[0]), self._speed_lim[1])
+        speed = min(max(speed, self._speed_lim[0]), self._speed_lim[1], join_cap)
         if self._joining:  # peaky tyres reach the line slowly, then ramp from there
-            if abs(tc.e_m) > JOIN_TOLERANCE_M:
+            if self._join is not None or abs(tc.e_m) > JOIN_TOLERANCE_M:  # (the blend
+                # crosses the line on its way: joined is at its end)
                 speed = min(speed, JOIN_SPEED_MPS)
             else:
                 self._joining = False
@@ -672,8 +714,10 @@ class RacelinePlanner:
             # ramp): the steering of the line at that speed; the line's own, for its
             # speed, turned the identified car joining at 2 m/s off the inside of map416's
             # first bends (2 off-track events in every out lap)
-            steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m, speed, steering)
-        if self._offset != 0.0:  # the offset path bends more (less) than the line
+            steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m, speed, steering, slope)
+        if self._join is not None:  # the blended path bends more (less) than the line
+            steering += join_steer
+        elif self._offset != 0.0:  # the offset path bends more (less) than the line
             steering += self._offset_steering(tc.s_m)
         self._speed_cmd = speed
         self._drove = plan.mode != "follow"  # waiting behind a car is not a stall
@@ -698,6 +742,53 @@ class RacelinePlanner:
         if o.grip_error_m > 0.0 and abs(e_line_m) > o.grip_error_m:
             self.speed_scale = max(o.grip_min_scale, self.speed_scale * (1.0 - o.grip_step))
 
+    def _start_join(self, cx: float, cy: float, hint: float | None) -> LineJoin | None:
+        """The join onto the line from the CoG (`cx`, `cy`) [m] (``raceline.join``), or
+        None when the car is on the line already."""
+        line = self.raceline.track
+        s_l, e_l = self.tracker.project(cx, cy, hint)
+        q = -np.asarray(self.raceline.offset_m, dtype=float)  # right + from the centreline
+        e0 = e_l + float(np.interp(s_l, line.s_m, q, period=line.length_m))
+        wheelbase = self.vehicle.lf_m + self.vehicle.lr_m
+        turn = math.tan(min(-self._delta_lim[0], self._delta_lim[1])) / wheelbase
+        # the blend's lateral speed is the same joining slowly (peaky tyres, JOIN_SPEED_MPS)
+        # as at the line's top speed: a steeper, shorter blend (a long one at 2 m/s left
+        # the identified car ramping up into map416's first bend)
+        slope = MAX_JOIN_SLOPE * (self._top_speed_mps / JOIN_SPEED_MPS if self._joining else 1.0)
+        return LineJoin.start(s_l, e0, line.s_m, q, line.length_m, max_slope=slope,
+                              line_xy=self._line_points,
+                              max_curvature_1pm=JOIN_STEER_SHARE * turn, turn_curvature_1pm=turn)
+
+    def _line_points(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The line's points (k, 2) [m] and right normals (k, 2) at stations `s` (k,) [m]."""
+        line = self.raceline.track
+        h = line.heading_at(s)
+        return line.point_at(s), np.column_stack([np.sin(h), -np.cos(h)])
+
+    def _join_feed(self, s_m: float) -> tuple[float, float]:
+        """(steering [rad], speed cap [m/s]) of the join's blended path from line station
+        `s_m` (``raceline.join``): the kinematic steering its curvature needs beyond the
+        line's, ``JOIN_LEAD_M`` ahead (the command acts after the delays), and the speed
+        at which its tightest curvature over the next ``JOIN_LOOK_M`` takes
+        ``JOIN_GRIP_SHARE`` of the tyres' grip, at most the line's top speed."""
+        join = self._join
+        wheelbase = self.vehicle.lf_m + self.vehicle.lr_m
+        k_path = join.path_curvature(s_m + JOIN_LEAD_M, self._line_points)
+        k_line = float(self.raceline.reference.at("kappa", s_m + JOIN_LEAD_M))
+        steer = math.atan(wheelbase * k_path) - math.atan(wheelbase * k_line)
+        ahead = s_m + np.linspace(0.0, JOIN_LOOK_M, 6)
+        k_max = max(abs(join.path_curvature(float(s), self._line_points)) for s in ahead)
+        grip = JOIN_GRIP_SHARE * self.vehicle.mu * GRAVITY_MPS2
+        cap = math.sqrt(grip / k_max) if k_max > 1e-6 else math.inf
+        # no lead over the line's top speed: the car is not where the plan's clock expects
+        # it, and the lead's 0.3-0.4 m/s took it past the cap
+        return steer, min(cap, self._top_speed_mps)
+
+    @cached_property
+    def _top_speed_mps(self) -> float:
+        """The line's top speed [m/s] (the cap it was planned at)."""
+        return float(np.max(self.raceline.reference.v_mps))
+
     def _relocate(self) -> None:
         """Forget where the car was (a teleport, ``TELEPORT_JUMP_M``), keeping the counts."""
         self._s_line = self._s_track = None
@@ -707,6 +798,7 @@ class RacelinePlanner:
         self._drove = False
         self._speed_cmd = 0.0
         self.recovery.active = False
+        self._join, self._join_pending = None, True
 
     def _project_track(self, x: float, y: float) -> tuple[float, float]:
         if self._s_track is None:

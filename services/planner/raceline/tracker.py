@@ -403,6 +403,7 @@ class Tracker:
         s_hint_m: float | None = None,
         offset_m: float = 0.0,
         speed_scale: float = 1.0,
+        offset_slope: float = 0.0,
     ) -> TrackerCommand:
         """The command from the CoG pose (x, y [m], yaw [rad]); see the module docstring.
 
@@ -417,6 +418,10 @@ class Tracker:
                 lateral acceleration ``c^2`` of it, the acceleration demand ``c^2 a_p``, the
                 plan's clock ``c`` times as fast: a car with less grip than planned,
                 ``RacelinePlanner``'s grip adaptation); 1: the plan itself.
+            offset_slope: d(offset_m)/ds [m/m], how the offset changes along the path (a
+                join, ``raceline.join``): the look-ahead's heading error is taken from the
+                offset path (``atan`` of it turned right of the path's heading); 0: a
+                parallel path.
         """
         p = self.plan
         g = self.gains
@@ -427,7 +432,7 @@ class Tracker:
         dpsi = wrap_angle(yaw_rad - p.at("yaw", s))
         v_p = c * p.at("v", s)
         l_d = g.lookahead_m(v_p)
-        e_la = e - l_d * math.sin(dpsi)
+        e_la = e - l_d * math.sin(dpsi + math.atan(offset_slope))
         tau = self.timing.servo_time_constant_s
         if tau > 0.0:  # a slow servo: feed back the error predicted its lag ahead
             prev, self._e_la_prev = self._e_la_prev, e_la

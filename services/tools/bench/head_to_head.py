@@ -126,8 +126,9 @@ class SeedResult:
     times_s: list[float] = field(default_factory=list, repr=False)
 
 
-class _Car:
-    """One car: its simulator, lap timer and the command acting."""
+class SimCar:
+    """One car of the bench's closed loops: its simulator (at rest on the centreline at
+    `s0_m`), lap timer, off-track count and the command acting."""
 
     def __init__(self, track: Track, settings: SimulatorSettings, s0_m: float) -> None:
         self.sim = Simulator(settings)
@@ -260,7 +261,7 @@ def race_seed(
     rng = np.random.default_rng(seed)
     gap = float(rng.uniform(*opts.gap_m))
     res = SeedResult(seed, round(gap, 3))
-    cars = [_Car(track, settings, OUT_LAP_START_M), _Car(track, settings, OUT_LAP_START_M + gap)]
+    cars = [SimCar(track, settings, s0) for s0 in (OUT_LAP_START_M, OUT_LAP_START_M + gap)]
     planners = [ego, opponent]
     for p in planners:
         p.reset()
@@ -341,7 +342,7 @@ def solo_time_s(
 ) -> float:
     """Time [s] the ego alone takes from the same start over `distance_m` [m] (the bench's
     timing, the opponent's car far away and unseen)."""
-    car = _Car(track, settings, OUT_LAP_START_M)
+    car = SimCar(track, settings, OUT_LAP_START_M)
     planner.reset()
     if _takes_opponents(planner):
         planner.set_opponents([])
