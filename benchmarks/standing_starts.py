@@ -1,15 +1,16 @@
-"""Standing starts anywhere on the track: does the raceline join its line cleanly (issue #21)?
+"""Standing starts anywhere on the track: does a planner join its line cleanly (issue #21)?
 
 A car put down at rest on the centreline at a seeded random station (a grid slot, a reset,
-a marshal's restart) races ``--seconds`` under the raceline planner in the bench's closed
-loop (20 Hz, 2 ms compute delay, the simulator's delays). Per track it prints the starts
-that left the track, the off-track events, the car's top speed and the ticks it spent over
-the 4.18 m/s cap by more than 1 %; then the totals. The stations are
+a marshal's restart) races ``--seconds`` under ``--method`` (default ``raceline``) in the
+bench's closed loop (20 Hz, 2 ms compute delay, the simulator's delays). Per track it
+prints the starts that left the track, the off-track events, the car's top speed and the
+ticks it spent over the 4.18 m/s cap by more than 1 %; then the totals. The stations are
 ``numpy.random.default_rng(seed).uniform(0, length)``, so a run is the same on every
 machine.
 
     .venv/bin/python -m benchmarks.standing_starts --tracks map416,paperlike,gen:1 --starts 20
     .venv/bin/python -m benchmarks.standing_starts --config identified.toml --seed 13
+    .venv/bin/python -m benchmarks.standing_starts --method cimpcc-line
 """
 
 from __future__ import annotations
@@ -23,8 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from services.planner.interface import PlannerLike
 from services.planner.mintime.store import ensure_artefacts
-from services.planner.raceline.planner import RacelinePlanner
+from services.planner.registry import PlannerPool
 from services.simulator import Command
 from services.tools.bench.head_to_head import SimCar
 from shared.config import RacestackConfig, load_config
@@ -51,7 +53,7 @@ class StartsResult:
 
 
 def race_from(
-    planner: RacelinePlanner, track: Track, cfg: RacestackConfig, s0_m: float, seconds: float
+    planner: PlannerLike, track: Track, cfg: RacestackConfig, s0_m: float, seconds: float
 ) -> tuple[int, float, int]:
     """(off-track events, top speed [m/s], ticks over the cap) of one start at `s0_m`."""
     car = SimCar(track, cfg.simulator, s0_m)
@@ -73,12 +75,17 @@ def race_from(
 
 
 def run_track(
-    spec: str, cfg: RacestackConfig, starts: int, seed: int, seconds: float
+    spec: str,
+    cfg: RacestackConfig,
+    starts: int,
+    seed: int,
+    seconds: float,
+    method: str = RACELINE,
 ) -> StartsResult:
-    """`starts` seeded standing starts on the track `spec`."""
+    """`starts` seeded standing starts of `method` on the track `spec`."""
     track = load_track(spec)
-    ensure_artefacts(RACELINE, track, cfg.planner, cfg.vehicle, progress=None)
-    planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
+    ensure_artefacts(method, track, cfg.planner, cfg.vehicle, progress=None)
+    planner = PlannerPool(track, cfg.vehicle).planner(cfg.planner, method, cfg.curvature)
     rng = np.random.default_rng(seed)
     res = StartsResult(track.name, starts, [], 0, 0.0, 0)
     for _ in range(starts):
@@ -100,6 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tracks", default="map416,paperlike,gen:1,gen:2",
                     help="comma list of tracks (a name under --tracks-dir, a built-in, gen:SEED)")
+    ap.add_argument("--method", default=RACELINE, help="a registry method (default raceline)")
     ap.add_argument("--starts", type=int, default=20, help="starts per track")
     ap.add_argument("--seed", type=int, default=11, help="seed of the start stations")
     ap.add_argument("--seconds", type=float, default=6.0, help="time raced from each start")
@@ -113,7 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
           "  stations that left [m]")
     for name in [t for t in args.tracks.split(",") if t]:
         r = run_track(_track_spec(name, args.tracks_dir), cfg, args.starts, args.seed,
-                      args.seconds)
+                      args.seconds, args.method)
         print(f"{r.track:<12} {r.starts:>6} {len(r.off_starts):>5} {r.off_events:>4} "
               f"{r.top_speed_mps:>8.3f} {r.over_cap_ticks:>5}  {r.off_starts}")
         total.starts += r.starts
@@ -121,7 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         total.off_events += r.off_events
         total.top_speed_mps = max(total.top_speed_mps, r.top_speed_mps)
         total.over_cap_ticks += r.over_cap_ticks
-    print(f"standing starts: {total.starts}, left the track {len(total.off_starts)} "
+    print(f"{args.method} standing starts: {total.starts}, left the track {len(total.off_starts)} "
           f"({total.off_events} off-track events), top speed {total.top_speed_mps:.3f} m/s, "
           f"{total.over_cap_ticks} ticks over the cap (+{CAP_TOLERANCE:.0%})")
     return 0
