@@ -357,6 +357,12 @@ class CimpccLineSettings(Section):
         "beside the plan's lateral acceleration (a friction ellipse for the drive; the rear "
         "spins when throttle and cornering take its whole grip); None or other tyres: no cap",
     )
+    traction_fraction_gym: float | None = Field(
+        0.9, gt=0.0, le=1.0,
+        description="the same cap for the gym's tyres ('linear_saturated', 'linear'): out of "
+        "hairpins at full steering lock the drive pushed the car wide over the boundary "
+        "(held-out generated tracks: 15 -> 3 off-track events); None: no cap",
+    )
     servo_state: bool = Field(
         True,
         description="model 'kinematic_slip_speed' on a car with a slow servo (its reach "

@@ -176,7 +176,22 @@ def test_the_planner_estimates_the_wheels_and_steers_the_servos_target(circle_li
     # the wheels' estimate follows the targets that were sent
     assert 0.0 < planner._delta_est <= REAL_CAR_IDENTIFIED.steering_max_rad
     gym = Planner(track, UNCOMPILED, reference=ref)
-    assert not gym.problem.has_servo and gym._traction_mps2 is None
+    assert not gym.problem.has_servo
+
+
+def test_the_gym_s_tyres_have_their_own_traction_budget(circle_line) -> None:
+    """``traction_fraction_gym`` (0.9) for the gym's tyres, ``traction_fraction`` (0.8) for
+    Pacejka ones; None turns either off (issue #21: the gym car drove wide out of
+    hairpins at full lock)."""
+    track, ref = circle_line
+    gym = Planner(track, UNCOMPILED, reference=ref)
+    assert gym._traction_mps2 == pytest.approx(0.9 * friction_circle_mps2(F1TENTH_GYM))
+    off = UNCOMPILED.model_copy(update={"cimpcc_line": UNCOMPILED.cimpcc_line.model_copy(
+        update={"traction_fraction_gym": None})})
+    assert Planner(track, off, reference=ref)._traction_mps2 is None
+    car = REAL_CAR_IDENTIFIED  # the Pacejka car keeps its own share
+    assert Planner(track, off, reference=ref, vehicle=car)._traction_mps2 == pytest.approx(
+        0.8 * friction_circle_mps2(car))
 
 
 def test_the_traction_budget_caps_the_drive_in_a_bend_not_on_a_straight(circle_line) -> None:

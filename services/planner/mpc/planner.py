@@ -297,10 +297,11 @@ class Planner:
             else None
         )
         #: the speed command's traction budget [m/s^2] (None: no cap; ``_traction_cap``)
-        frac = settings.cimpcc_line.traction_fraction
+        own = settings.cimpcc_line
+        frac = own.traction_fraction if car.tyre_model == "pacejka" else own.traction_fraction_gym
         self._traction_mps2 = (
             frac * friction_circle_mps2(car)
-            if line and problem.has_speed and frac is not None and car.tyre_model == "pacejka"
+            if line and problem.has_speed and frac is not None
             else None
         )
         self.reset()
@@ -501,7 +502,8 @@ class Planner:
         return reach + fade * d0 / k_a
 
     def _traction_cap(self, v_cmd: float, v: float, w: np.ndarray) -> float:
-        """The speed command [m/s] within the traction budget (Pacejka tyres).
+        """The speed command [m/s] within the traction budget (``traction_fraction`` for
+        Pacejka tyres, ``traction_fraction_gym`` for the gym's).
 
         The plan's lateral acceleration over its first step, ``a_y = v psi'`` (``psi'``
         the heading change from stage 0 to 1 over Ts), leaves ``a_x = sqrt(A^2 - a_y^2)``
