@@ -263,3 +263,35 @@ def test_joining_the_line_slowly_steers_for_the_speed_it_joins_at() -> None:
     assert planner._joining and res.command.speed_mps <= JOIN_SPEED_MPS
     assert asked == [(res.command.speed_mps, pytest.approx(asked[0][1]))]
     assert res.command.steering_rad == pytest.approx(0.0123)
+
+
+def test_a_grip_adapted_car_steers_for_the_speed_it_is_held_at() -> None:
+    """The grip adaptation (``speed_scale`` < 1) holds the car below its line's speed; it
+    steers the line at that speed (``_slow_steering``), not the line's own steering for the
+    line's speed: with that, a car whose adaptation fired turned in too far (gen-1 and gen-7
+    with the identified car: 12 and 15 off-track events, issue #21)."""
+    track = load_track("paperlike")
+    planner = RacelinePlanner(track, PlannerSettings(raceline=RacelineSettings(
+        line="min_curvature")), vehicle=F1TENTH_GYM)
+    ref = planner.raceline.reference
+    s = float(ref.s_m[int(np.argmax(ref.v_mps))])
+    x, y = ref.line.point_at(s)
+    h = float(ref.line.heading_at(s))
+    lr = F1TENTH_GYM.lr_m
+    pose = (float(x) - lr * math.cos(h), float(y) - lr * math.sin(h), h)  # on the line
+    asked = []
+
+    def slow(cx, cy, yaw, s_m, speed_mps, line_rad, slope=0.0):
+        asked.append(speed_mps)
+        return 0.0123
+
+    planner._slow_steering = slow
+    planner._s_line = s
+    planner._join_pending = False
+    res = planner.step(*pose)  # at the line's own speed: its own steering
+    assert not asked and res.command.steering_rad != pytest.approx(0.0123)
+    planner.speed_scale = 0.8
+    res = planner.step(*pose)
+    assert asked == [pytest.approx(res.command.speed_mps)]
+    assert res.command.steering_rad == pytest.approx(0.0123)
+    assert res.command.speed_mps < 0.85 * float(ref.at("v", s)) + 0.5

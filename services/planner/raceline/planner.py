@@ -709,11 +709,14 @@ class RacelinePlanner:
                 self._handover.start(self._speed_cmd)
         if self._handover.active:
             speed = self._handover.cap(speed, self.settings.dt_s)
-        if speed < min(tc.speed_mps, self._speed_lim[1]) - SLOW_SPEED_MPS:
+        # the line's own speed command: the grip adaptation's scale is a speed held below
+        # the line's too (the tracker's steering is the line's at its own speed)
+        line_speed = tc.speed_mps / self.speed_scale
+        if speed < min(line_speed, self._speed_lim[1]) - SLOW_SPEED_MPS:
             # held below the line's speed (behind a car, joining the line, the hand-over's
-            # ramp): the steering of the line at that speed; the line's own, for its
-            # speed, turned the identified car joining at 2 m/s off the inside of map416's
-            # first bends (2 off-track events in every out lap)
+            # ramp, a grip adaptation): the steering of the line at that speed; the line's
+            # own, for its speed, turned the identified car joining at 2 m/s off the inside
+            # of map416's first bends (2 off-track events in every out lap)
             steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m, speed, steering, slope)
         if self._join is not None:  # the blended path bends more (less) than the line
             steering += join_steer
