@@ -271,12 +271,12 @@ class RacelineSettings(Section):
         "there as before); None: the cut at every speed",
     )
     grip_error_m: float = Field(
-        0.0, ge=0.0, le=2.0,
+        0.3, ge=0.0, le=2.0,
         description="grip adaptation: each tick the car is further than this from the line "
-        "[m] the plan's speeds shrink by grip_step; 0 (default): off. 0.2 took the identified "
-        "car on the gym car's line from 2.9-4.8 to 1.37-1.43 of its limit, but also slowed "
-        "the identified car told its car on map416 (ekf 1.107, 14 off-track, against 1.053 "
-        "off)",
+        "[m] the plan's speeds shrink by grip_step (from the path of a join or an overtake, "
+        "when it drives one); 0: off. The identified car on the gym car's line: 3.0-4.4 x "
+        "its limit with 16-82 spins a cell off, 1.41-1.46 with 0-7 spins at 0.3 (README, "
+        "issue #21)",
     )
     grip_step: float = Field(
         0.02, ge=0.0, le=0.5,

@@ -43,9 +43,18 @@ def test_the_weight_is_flat_at_both_ends() -> None:
     assert steepest == pytest.approx(STEEPEST, rel=1e-3)
 
 
-def test_a_car_on_its_line_needs_no_join() -> None:
-    e0 = float(np.interp(3.0, S, Q)) + 0.5 * ON_LINE_M
-    assert LineJoin.start(3.0, e0, S, Q, LENGTH) is None
+def test_a_car_on_its_line_needs_no_join_where_the_line_runs_along_the_track() -> None:
+    """On the line where it runs along the track (the crest of its swing): no blend; on
+    the line where it crosses the track (the car put down along the track stands across
+    the line): a blend that leaves along the track."""
+    crest = 2.5  # Q's maximum: the line parallel to the track
+    e0 = float(np.interp(crest, S, Q)) + 0.5 * ON_LINE_M
+    assert LineJoin.start(crest, e0, S, Q, LENGTH) is None
+    across = 5.0  # Q crosses the centreline at its steepest, 0.19 m/m
+    e0 = float(np.interp(across, S, Q))
+    join = LineJoin.start(across, e0, S, Q, LENGTH)
+    assert join is not None
+    assert abs(join.slope(across + 1e-3) + float(np.gradient(Q, S)[50])) < 0.02  # along
 
 
 def test_the_blend_starts_at_the_car_ends_on_the_line_and_stays_between_them() -> None:
