@@ -273,10 +273,10 @@ class RacelineSettings(Section):
     grip_error_m: float = Field(
         0.3, ge=0.0, le=2.0,
         description="grip adaptation: each tick the car is further than this from the line "
-        "[m] the plan's speeds shrink by grip_step (from the path of a join or an overtake, "
-        "when it drives one); 0: off. The identified car on the gym car's line: 3.0-4.4 x "
-        "its limit with 16-82 spins a cell off, 1.41-1.46 with 0-7 spins at 0.3 (README, "
-        "issue #21)",
+        "[m] the plan's speeds shrink by grip_step (from a join's path; never beside an "
+        "opponent or on the way back from one); 0: off. The identified car on the gym "
+        "car's line: 3.0-4.4 x its limit with 16-82 spins a cell off, 1.41-1.46 with 0-7 "
+        "spins at 0.3 (README, issue #21)",
     )
     grip_step: float = Field(
         0.02, ge=0.0, le=0.5,
