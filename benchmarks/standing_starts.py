@@ -19,7 +19,7 @@ import argparse
 import math
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -50,18 +50,27 @@ class StartsResult:
     off_events: int
     top_speed_mps: float
     over_cap_ticks: int
+    step_ms: list[float] = field(default_factory=list)  #: each tick's step time [ms]
 
 
 def race_from(
-    planner: PlannerLike, track: Track, cfg: RacestackConfig, s0_m: float, seconds: float
+    planner: PlannerLike,
+    track: Track,
+    cfg: RacestackConfig,
+    s0_m: float,
+    seconds: float,
+    step_ms: list[float] | None = None,
 ) -> tuple[int, float, int]:
-    """(off-track events, top speed [m/s], ticks over the cap) of one start at `s0_m`."""
+    """(off-track events, top speed [m/s], ticks over the cap) of one start at `s0_m`;
+    each tick's step time [ms] (the planner's own timer) appended to `step_ms`."""
     car = SimCar(track, cfg.simulator, s0_m)
     planner.reset()
     period, step = planner.settings.dt_s, cfg.simulator.integration_step_s
     top, over = 0.0, 0
     for _ in range(round(seconds / period)):
         res = planner.step(*car.rear_pose())
+        if step_ms is not None:
+            step_ms.append(res.solve_time_s * 1e3)
         new = Command(res.command.speed_mps, res.command.steering_rad)
         car.step(car.cmd, COMPUTE_DELAY_S)
         n = max(1, math.ceil((period - COMPUTE_DELAY_S) / step - 1e-9))
@@ -90,13 +99,20 @@ def run_track(
     res = StartsResult(track.name, starts, [], 0, 0.0, 0)
     for _ in range(starts):
         s0 = float(rng.uniform(0.0, track.length_m))
-        off, top, over = race_from(planner, track, cfg, s0, seconds)
+        off, top, over = race_from(planner, track, cfg, s0, seconds, res.step_ms)
         res.off_events += off
         if off:
             res.off_starts.append(round(s0, 2))
         res.top_speed_mps = max(res.top_speed_mps, top)
         res.over_cap_ticks += over
     return res
+
+
+def _step(ms: list[float]) -> str:
+    """Median / p99 [ms] of step times."""
+    if not ms:
+        return "-"
+    return f"{np.median(ms):.2f}/{np.percentile(ms, 99):.2f}"
 
 
 def _track_spec(name: str, tracks_dir: Path) -> str:
@@ -118,20 +134,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = load_config(args.config)
     total = StartsResult("all", 0, [], 0, 0.0, 0)
     print(f"{'track':<12} {'starts':>6} {'left':>5} {'off':>4} {'top m/s':>8} {'>cap':>5}"
-          "  stations that left [m]")
+          f" {'step ms':>11}  stations that left [m]")
     for name in [t for t in args.tracks.split(",") if t]:
         r = run_track(_track_spec(name, args.tracks_dir), cfg, args.starts, args.seed,
                       args.seconds, args.method)
         print(f"{r.track:<12} {r.starts:>6} {len(r.off_starts):>5} {r.off_events:>4} "
-              f"{r.top_speed_mps:>8.3f} {r.over_cap_ticks:>5}  {r.off_starts}")
+              f"{r.top_speed_mps:>8.3f} {r.over_cap_ticks:>5} {_step(r.step_ms):>11}  "
+              f"{r.off_starts}")
         total.starts += r.starts
         total.off_starts += r.off_starts
         total.off_events += r.off_events
         total.top_speed_mps = max(total.top_speed_mps, r.top_speed_mps)
         total.over_cap_ticks += r.over_cap_ticks
+        total.step_ms += r.step_ms
     print(f"{args.method} standing starts: {total.starts}, left the track {len(total.off_starts)} "
           f"({total.off_events} off-track events), top speed {total.top_speed_mps:.3f} m/s, "
-          f"{total.over_cap_ticks} ticks over the cap (+{CAP_TOLERANCE:.0%})")
+          f"{total.over_cap_ticks} ticks over the cap (+{CAP_TOLERANCE:.0%}), step median / "
+          f"p99 {_step(total.step_ms)} ms (wall)")
     return 0
 
 
