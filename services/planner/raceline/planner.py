@@ -72,6 +72,7 @@ from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSe
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
 from shared.curvature import track_profile
 from shared.track import Track, TrackError
+from shared.vehicle import GRAVITY_MPS2
 
 #: IPOPT statuses accepted besides success: converged as far as its precision allows.
 NEAR_OPTIMAL = frozenset({"Solved_To_Acceptable_Level", "Search_Direction_Becomes_Too_Small"})
@@ -120,7 +121,6 @@ JOIN_GRIP_SHARE = 0.8
 JOIN_LOOK_M = 1.5
 #: ... and bends at most as tight as this share of the steering limit turns the car.
 JOIN_STEER_SHARE = 0.8
-GRAVITY_MPS2 = 9.81
 #: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
 MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
 
