@@ -96,7 +96,9 @@ def make_storage(url: str) -> optuna.storages.RDBStorage:
 def _schema_race(exc: BaseException) -> bool:
     """The error of a worker that lost the race to create a new database's tables."""
     text = str(exc).lower()
-    return "already exists" in text or "duplicate" in text or "locked" in text
+    # SQLite: "table ... already exists", "database is locked", and the alembic version
+    # row both workers insert: "UNIQUE constraint failed: alembic_version.version_num"
+    return any(k in text for k in ("already exists", "duplicate", "locked", "unique constraint"))
 
 
 def _one_line(exc: BaseException) -> str:
