@@ -43,7 +43,9 @@ the limit is then solved at that top speed too. MPCC's fixed speed reference is 
 stays. ``--config FILE`` lays a TOML file's tables over every car's (``config_for``: e.g.
 ``[planner.raceline]`` settings to try; the laps it changes are solved and cached like the
 others). ``--min-time-ds`` puts the limit's and the raceline's minimum-time laps on a coarser
-grid (``[planner.raceline] ds_m``; the 260-460 m F1TENTH maps); cimpcc-line's line keeps 0.1 m.
+grid (``[planner.raceline] ds_m``) for every track; without it the tracks longer than
+``LONG_TRACK_M`` (the 260-460 m F1TENTH maps) take ``LONG_TRACK_DS_M`` and the others the
+configuration's 0.1 m. cimpcc-line's line keeps 0.1 m.
 
 Two phases: first every minimum-time lap the cells read (each car's limit and the planners'
 lines), solved once and cached (``services.planner.make_min_time_lap``), in ``--jobs``
@@ -124,6 +126,12 @@ RATIO_TARGETS = {"truth": 1.03, "ekf": 1.05, "lidar": 1.06}
 MISMATCH_RATIO_TARGET = 1.15
 #: The whole matrix's wall time target here [s] (the minimum-time laps cached, both cores).
 MATRIX_WALL_TARGET_S = 30 * 60.0
+#: Tracks longer than this [m] (the 260-460 m F1TENTH maps; the built-in and generated ones
+#: are 25-120 m) take their minimum-time laps on ``LONG_TRACK_DS_M`` unless
+#: ``--min-time-ds`` sets one grid for all.
+LONG_TRACK_M = 200.0
+#: Their grid [m] (on 0.1 m one such lap takes minutes: the whole matrix needs 60 of them).
+LONG_TRACK_DS_M = 0.25
 #: A cell's wall time per metre of track relative to the true pose's (the medians of the
 #: matrix's cells by pose: the EKF about doubles it, the lidar's scans and particle filter
 #: about six times it); ``cell_order`` schedules the costly cells first.
@@ -251,6 +259,17 @@ class Matrix:
     ds_m: float | None = None
     #: ``--config``'s tables as JSON ("": none), over every car's (``config_for``)
     overlay: str = ""
+    #: the grid [m] of a track longer than ``LONG_TRACK_M`` when ``ds_m`` is None (the
+    #: F1TENTH maps: their minimum-time laps take minutes each on the 0.1 m grid)
+    long_track_ds_m: float | None = LONG_TRACK_DS_M
+
+    def ds_for(self, track_spec: str) -> float | None:
+        """The minimum-time grid [m] of `track_spec`'s laps: ``ds_m`` when given, else
+        ``long_track_ds_m`` on a track longer than ``LONG_TRACK_M``, else None (the
+        configuration's own)."""
+        if self.ds_m is not None or self.long_track_ds_m is None:
+            return self.ds_m
+        return self.long_track_ds_m if _track(track_spec).length_m > LONG_TRACK_M else None
 
     @property
     def extra(self) -> dict[str, Any]:
@@ -340,14 +359,15 @@ def lap_tasks(matrix: Matrix) -> list[LapTask]:
     method's line for the planners' car, the longest tracks first."""
     tasks: dict[str, LapTask] = {}
     for car in matrix.cars:
-        cfg = config_for(car, matrix.v_max_mps, matrix.ds_m, matrix.extra)
-        wanted = [("limit", *limit_request(cfg.planner, cfg.simulator.vehicle, matrix.ds_m))]
-        for pose in matrix.poses:  # the pose source's margin (``for_pose_source``)
-            planner = for_pose_source(cfg.planner, pose)
-            for method in matrix.methods:
-                for use in laps_of(method, planner):
-                    wanted.append((use, *request_for(use, planner, cfg.vehicle)))
         for track in matrix.tracks:
+            ds_m = matrix.ds_for(track)
+            cfg = config_for(car, matrix.v_max_mps, ds_m, matrix.extra)
+            wanted = [("limit", *limit_request(cfg.planner, cfg.simulator.vehicle, ds_m))]
+            for pose in matrix.poses:  # the pose source's margin (``for_pose_source``)
+                planner = for_pose_source(cfg.planner, pose)
+                for method in matrix.methods:
+                    for use in laps_of(method, planner):
+                        wanted.append((use, *request_for(use, planner, cfg.vehicle)))
             for use, vehicle, settings in wanted:
                 task = LapTask(track, use, vehicle.model_dump(mode="json"), settings,
                                f"{_short(track)} {use} ({car}, margin {settings.margin_m:g} m)")
@@ -420,7 +440,7 @@ def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
     """Race every method of `matrix` in `cell`; the cell's record (JSON-ready)."""
     t0 = time.perf_counter()
     track, cfg, pool, ref, note, peak = _setup(cell.track, cell.car, matrix.v_max_mps,
-                                               matrix.ds_m, matrix.overlay)
+                                               matrix.ds_for(cell.track), matrix.overlay)
     opts = LoopOptions(laps=matrix.laps, estimator=cell.pose, localization=cfg.localization)
     methods: dict[str, Any] = {}
     for name in matrix.methods:
@@ -705,7 +725,13 @@ def report(cells: list[dict[str, Any]], matrix: Matrix, timings: dict[str, float
     summary = {m: summarise(cells, m) for m in matrix.methods}
     kinds = wall_by_kind(cells)
     cap = _fmt(matrix.v_max_mps, "g", "the configuration's (4.18 m/s)")
-    grid = "" if matrix.ds_m is None else f", minimum-time grid {matrix.ds_m:g} m"
+    if matrix.ds_m is not None:
+        grid = f", minimum-time grid {matrix.ds_m:g} m"
+    elif matrix.long_track_ds_m is not None:
+        grid = (f", minimum-time grid {matrix.long_track_ds_m:g} m on tracks over "
+                f"{LONG_TRACK_M:g} m")
+    else:
+        grid = ""
     over = "" if not matrix.overlay else f", --config {matrix.overlay}"
     lines = [
         f"robustness matrix: {len(matrix.tracks)} tracks x {len(matrix.cars)} cars x "
@@ -851,10 +877,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="every method's cap and the limit's top speed [m/s] (default the "
                     "configuration's 4.18; e.g. 10 on the F1TENTH maps)")
     ap.add_argument("--min-time-ds", type=float, default=None,
-                    help="grid [m] of the limit's and the raceline's minimum-time laps "
-                    "(default the configuration's, 0.1; e.g. 0.25 on the 260-460 m F1TENTH "
-                    "maps, where a 0.1 m grid takes minutes per lap; cimpcc-line's line keeps "
-                    "0.1)")
+                    help="grid [m] of the limit's and the raceline's minimum-time laps on "
+                    "every track (default: the configuration's 0.1 m, and 0.25 m on tracks "
+                    "longer than 200 m, the 260-460 m F1TENTH maps, where a 0.1 m grid takes "
+                    "minutes per lap; cimpcc-line's line keeps 0.1)")
     ap.add_argument("--config", default=None,
                     help="a TOML file of configuration tables laid over every car's (e.g. "
                     "[planner.raceline] settings; default none)")
