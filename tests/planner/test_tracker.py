@@ -289,3 +289,29 @@ def test_the_schedules_exponent() -> None:
     o = SETTINGS.raceline
     assert o.k_lateral_speed_exponent == 4.0
     assert tracker_gains(o).k_lateral_at(10.0) == pytest.approx(o.k_lateral_radpm * 0.418**4)
+
+
+def test_a_slower_plan_keeps_the_fourth_power_of_the_plans_dynamic_part() -> None:
+    """``ReferenceLap.slower``: the steady state at the slower speeds plus share^4 of what
+    the plan steers and yaws beyond its own steady state (the yaw's part wrapped: a plan's
+    unwrapped yaw may start a turn away from the steady state's)."""
+    track = stadium(4.0, 1.5)
+    kappa = track.signed_curvature()
+    steady = ReferenceLap.from_path(track, np.asarray(kappa), np.full(len(track.xy), 3.0), CAR)
+    rng = np.random.default_rng(0)
+    dyn_delta = 0.05 * rng.standard_normal(len(steady.s_m))
+    dyn_yaw = 0.02 * rng.standard_normal(len(steady.s_m))
+    plan = ReferenceLap(
+        line=steady.line, s_m=steady.s_m, yaw_rad=steady.yaw_rad + dyn_yaw + 2 * math.pi,
+        kappa_1pm=steady.kappa_1pm, v_mps=steady.v_mps, a_mps2=steady.a_mps2,
+        delta_rad=steady.delta_rad + dyn_delta, t_s=steady.t_s, lap_time_s=steady.lap_time_s,
+    )
+    assert plan.slower(1.0, CAR) is plan
+    slow = plan.slower(0.8, CAR)
+    bare = ReferenceLap.from_path(track, np.asarray(kappa), 0.8 * plan.v_mps, CAR)
+    assert slow.v_mps == pytest.approx(0.8 * plan.v_mps)
+    assert slow.t_s == pytest.approx(bare.t_s)
+    assert slow.delta_rad == pytest.approx(bare.delta_rad + 0.8**4 * dyn_delta)
+    assert slow.yaw_rad == pytest.approx(bare.yaw_rad + 0.8**4 * dyn_yaw)
+    with pytest.raises(ValueError, match="share"):
+        plan.slower(0.0, CAR)

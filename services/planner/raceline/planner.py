@@ -383,16 +383,16 @@ def scaled_raceline(
 ) -> Raceline:
     """`raceline` driven at `scale` (0, 1] of its speed profile (an opponent below the
     limit, issue #24): the same path, speeds ``x scale``, and the plan rebuilt for that
-    profile by ``ReferenceLap.from_path`` (the steady-state single-track steering and
-    acceleration demand at the new speeds). Scaling the minimum-time lap's own steering
-    instead left its dynamic part wrong and the car ran wide (18 off-track events in two
-    laps of map416 at 0.85, against 0 this way)."""
+    profile by ``ReferenceLap.slower`` (the steady-state single-track steering and
+    acceleration demand at the new speeds, plus the lap's own dynamic part faded by the
+    share's fourth power). Scaling the minimum-time lap's own steering instead left its
+    dynamic part wrong and the car ran wide (18 off-track events in two laps of map416 at
+    0.85); the steady state alone clipped map416's apex at 0.95 every lap."""
     if not 0.0 < scale <= 1.0:
         raise ValueError(f"speed scale must be in (0, 1], got {scale}")
     if scale == 1.0:
         return raceline
-    ref = raceline.reference
-    scaled = ReferenceLap.from_path(ref.line, ref.kappa_1pm, ref.v_mps * scale, vehicle)
+    scaled = raceline.reference.slower(scale, vehicle)
     return replace(raceline, speed_mps=raceline.speed_mps * scale, reference=scaled)
 
 
@@ -530,12 +530,13 @@ class RacelinePlanner:
     @cached_property
     def _slow_trackers(self) -> list[Tracker]:
         """A tracker per ``FEED_FORWARD_SCALES`` (but the last) on the line at that share of
-        its speed profile (``ReferenceLap.from_path``: the steady-state steering and slip
-        at those speeds), for a car held below the line's speed."""
+        its speed profile (``ReferenceLap.slower``: the steady-state steering and slip at
+        those speeds with the line's dynamic part faded in), for a car held below the
+        line's speed."""
         ref = self.raceline.reference
         return [
             Tracker.for_vehicle(
-                ReferenceLap.from_path(ref.line, ref.kappa_1pm, ref.v_mps * k, self.vehicle),
+                ref.slower(k, self.vehicle),
                 self.tracker.timing,
                 self.tracker.gains,
                 self.vehicle,

@@ -64,7 +64,7 @@ on a limit circle); loads and demand are solved together by fixed-point iteratio
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -86,6 +86,9 @@ LAG_RATE_STEP_S = 0.01
 #: over this much planned speed [m/s] above its speed: a line capped at that speed (within
 #: IPOPT's bound tolerance, ~1e-8 relative) is driven as before.
 OUTWARD_RAMP_MPS = 1.0
+#: A slower plan (``ReferenceLap.slower``) keeps the plan's dynamic steering and yaw times
+#: this power of its speed share (tuned at 0.85-0.95 on map416, paperlike, gen:1001-1003).
+DYNAMIC_SHARE_EXPONENT = 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -231,6 +234,38 @@ class ReferenceLap:
             delta_rad=delta,
             t_s=np.concatenate([[0.0], np.cumsum(dt)[:-1]]),
             lap_time_s=float(dt.sum()),
+        )
+
+    def slower(self, share: float, vehicle: DynamicVehicleParams) -> ReferenceLap:
+        """This plan's path at `share` (0, 1] of its speeds: ``from_path`` at ``share v``
+        (the steady-state steering, slip and acceleration demand there) plus the plan's
+        own dynamic part scaled by ``share ** DYNAMIC_SHARE_EXPONENT``.
+
+        The dynamic part is what the plan (a minimum-time lap) steers and yaws beyond the
+        steady state at its own speeds, ``delta_p - delta_ss(v)`` and ``psi_p -
+        psi_ss(v)`` (wrapped): the yaw acceleration of a bend's entry and exit, the load
+        transfer. Without it the car ran wide or clipped apexes at 0.85-0.95 of the
+        speeds (map416's apex at s = 17.5 m every lap at 0.95, gen-1003 at 0.9). It
+        grows with the lateral acceleration's rate, so it fades fast below the plan's
+        speed: at ``share ** 2`` the car left the track at 0.85 on map416 and gen-1003,
+        at ``share ** 4`` on none of five tracks at 0.85, 0.9 or 0.95.
+
+        Args:
+            share: the speed share, 0 < share <= 1 (1: this plan).
+            vehicle: the car ``from_path`` steers.
+        """
+        if not 0.0 < share <= 1.0:
+            raise ValueError(f"speed share must be in (0, 1], got {share}")
+        if share == 1.0:
+            return self
+        slow = ReferenceLap.from_path(self.line, self.kappa_1pm, self.v_mps * share, vehicle)
+        steady = ReferenceLap.from_path(self.line, self.kappa_1pm, self.v_mps, vehicle)
+        k = share**DYNAMIC_SHARE_EXPONENT
+        yaw_dyn = np.asarray(wrap_angle(self.yaw_rad - steady.yaw_rad))
+        return replace(
+            slow,
+            delta_rad=slow.delta_rad + k * (self.delta_rad - steady.delta_rad),
+            yaw_rad=slow.yaw_rad + k * yaw_dyn,
         )
 
 
