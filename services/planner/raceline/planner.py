@@ -496,7 +496,9 @@ class RacelinePlanner:
         self._handover.active = False
         #: the grip adaptation's speed scale (``step``): 1 until the car strays off the line
         self.speed_scale = 1.0
-        self._on_line = False  #: reached the line since the start or the last recovery
+        #: reached the line since the start, the last recovery or the last manoeuvre
+        #: around a car (the grip adaptation judges only then)
+        self._on_line = False
         #: peaky tyres: join the line at JOIN_SPEED_MPS first, then ramp up (``step``)
         self._joining = ramps_from_rest(self.vehicle)
         self._drove = False  #: the last tick's command was the tracker's
@@ -700,6 +702,10 @@ class RacelinePlanner:
             # its ramped offset by more than a slide (with grip_error_m 0.3 the adaptation
             # fired in 7 of 10 passes on Oschersleben and slowed the car for good)
             self._adapt_grip(tc.e_m - self._offset)
+        else:  # ... nor on the way back from beside one before the car is on its line
+            # again (the offset reaches 0 before the car: Oschersleben seed 725 cut the
+            # speed scale to 0.92 there, 0.4 m from the line, and left the track)
+            self._on_line = False
         speed = tc.speed_mps
         steering = tc.steering_rad
         if plan is not FREE:
@@ -737,14 +743,15 @@ class RacelinePlanner:
 
     def _adapt_grip(self, e_line_m: float) -> None:
         """The grip adaptation: a tick with the car's CoG more than ``grip_error_m`` off the
-        line (once it has reached the line since the start or the last recovery) cuts the
-        speed scale by ``grip_step`` (down to ``grip_min_scale``); it never
-        rises again in a run. A car that has the grip it is planned for stays within a few
-        centimetres of its line and keeps the plan; one planned on another car's grip (the
-        identified car raced on the gym car's line) slides wide in its first bends and
-        settles at the speeds it can hold."""
+        line (once it has reached the line since the start, the last recovery or the last
+        manoeuvre around a car) cuts the speed scale by ``grip_step`` (down to
+        ``grip_min_scale``); it never rises again in a run. A car that has the grip it is
+        planned for stays within a few centimetres of its line and keeps the plan; one
+        planned on another car's grip (the identified car raced on the gym car's line)
+        slides wide in its first bends and settles at the speeds it can hold."""
         o = self.options
-        if not self._on_line:  # joining it (the start, after a recovery) is no slide
+        if not self._on_line:  # joining it (the start, after a recovery or a pass) is no
+            # slide
             self._on_line = abs(e_line_m) < 0.5 * o.grip_error_m
             return
         if o.grip_error_m > 0.0 and abs(e_line_m) > o.grip_error_m:
