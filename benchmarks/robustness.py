@@ -43,10 +43,9 @@ the limit is then solved at that top speed too. MPCC's fixed speed reference is 
 stays. ``--config FILE`` lays a TOML file's tables over every car's (``config_for``: e.g.
 ``[planner.raceline]`` settings to try; the laps it changes are solved and cached like the
 others). ``--min-time-ds`` puts the limit's and the raceline's minimum-time laps on a coarser
-grid (``[planner.raceline] ds_m``) for every track; without it the raceline's line on a
-track longer than ``LONG_TRACK_M`` (the 260-460 m F1TENTH maps) takes ``LONG_TRACK_DS_M``
-and the limit keeps the configuration's 0.1 m (on 0.25 m it was 0.1-0.2 % slower than the
-limit: cimpcc-line lapped under it). cimpcc-line's line keeps 0.1 m.
+grid (``[planner.raceline] ds_m``) for every track; without it the tracks longer than
+``LONG_TRACK_M`` (the 260-460 m F1TENTH maps) take ``LONG_TRACK_DS_M`` and the others the
+configuration's 0.1 m. cimpcc-line's line keeps 0.1 m.
 
 Two phases: first every minimum-time lap the cells read (each car's limit and the planners'
 lines), solved once and cached (``services.planner.make_min_time_lap``), in ``--jobs``
@@ -128,8 +127,8 @@ MISMATCH_RATIO_TARGET = 1.15
 #: The whole matrix's wall time target here [s] (the minimum-time laps cached, both cores).
 MATRIX_WALL_TARGET_S = 30 * 60.0
 #: Tracks longer than this [m] (the 260-460 m F1TENTH maps; the built-in and generated ones
-#: are 25-120 m) take the raceline's line on ``LONG_TRACK_DS_M`` unless ``--min-time-ds``
-#: sets one grid for all (the limit keeps the configuration's grid: ``Matrix.ds_for``).
+#: are 25-120 m) take their minimum-time laps on ``LONG_TRACK_DS_M`` unless
+#: ``--min-time-ds`` sets one grid for all.
 LONG_TRACK_M = 200.0
 #: Their grid [m] (on 0.1 m one such lap takes minutes: the whole matrix needs 60 of them).
 LONG_TRACK_DS_M = 0.25
@@ -265,11 +264,9 @@ class Matrix:
     long_track_ds_m: float | None = LONG_TRACK_DS_M
 
     def ds_for(self, track_spec: str) -> float | None:
-        """The grid [m] of the raceline's line on `track_spec`: ``ds_m`` when given, else
+        """The minimum-time grid [m] of `track_spec`'s laps: ``ds_m`` when given, else
         ``long_track_ds_m`` on a track longer than ``LONG_TRACK_M``, else None (the
-        configuration's own). The limit keeps ``ds_m`` (None: the configuration's 0.1 m):
-        on a coarser grid it is no limit (cimpcc-line's 0.1 m line lapped the F1TENTH
-        maps 0.1-0.2 % under their 0.25 m limits, clean)."""
+        configuration's own)."""
         if self.ds_m is not None or self.long_track_ds_m is None:
             return self.ds_m
         return self.long_track_ds_m if _track(track_spec).length_m > LONG_TRACK_M else None
@@ -363,9 +360,9 @@ def lap_tasks(matrix: Matrix) -> list[LapTask]:
     tasks: dict[str, LapTask] = {}
     for car in matrix.cars:
         for track in matrix.tracks:
-            cfg = config_for(car, matrix.v_max_mps, matrix.ds_for(track), matrix.extra)
-            wanted = [("limit", *limit_request(cfg.planner, cfg.simulator.vehicle,
-                                               matrix.ds_m))]
+            ds_m = matrix.ds_for(track)
+            cfg = config_for(car, matrix.v_max_mps, ds_m, matrix.extra)
+            wanted = [("limit", *limit_request(cfg.planner, cfg.simulator.vehicle, ds_m))]
             for pose in matrix.poses:  # the pose source's margin (``for_pose_source``)
                 planner = for_pose_source(cfg.planner, pose)
                 for method in matrix.methods:
@@ -408,10 +405,8 @@ _SETUPS: dict[tuple[str, str, float | None, float | None, str],
 
 
 def _setup(track_spec: str, car: str, v_max: float | None, ds_m: float | None = None,
-           overlay: str = "", limit_ds_m: float | None = None):
-    """The track, configuration (the raceline's line on grid `ds_m`), planner pool, limit
-    (on grid `limit_ds_m`; None: the configuration's), its note and the rear peak slip."""
-    key = (track_spec, car, v_max, ds_m, overlay, limit_ds_m)
+           overlay: str = ""):
+    key = (track_spec, car, v_max, ds_m, overlay)
     if key not in _SETUPS:
         if len(_SETUPS) >= 4:
             _SETUPS.pop(next(iter(_SETUPS)))
@@ -419,9 +414,9 @@ def _setup(track_spec: str, car: str, v_max: float | None, ds_m: float | None = 
         cfg = config_for(car, v_max, ds_m, json.loads(overlay) if overlay else None)
         said = io.StringIO()
         with contextlib.redirect_stderr(said):
-            ref = min_time_reference(track, cfg, ds_m=limit_ds_m)
+            ref = min_time_reference(track, cfg, ds_m=ds_m)
         note = "" if ref is not None else said.getvalue().strip().splitlines()[-1]
-        limit = _limit_lap(track, cfg, limit_ds_m)
+        limit = _limit_lap(track, cfg, ds_m)
         lap_slip = None if limit is None else lap_rear_slip_rad(limit, cfg.simulator.vehicle)
         peak = rear_peak_slip_rad(cfg.simulator.vehicle, lap_slip)
         _SETUPS[key] = (track, cfg, PlannerPool(track, cfg.vehicle), ref, note, peak)
@@ -445,8 +440,7 @@ def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
     """Race every method of `matrix` in `cell`; the cell's record (JSON-ready)."""
     t0 = time.perf_counter()
     track, cfg, pool, ref, note, peak = _setup(cell.track, cell.car, matrix.v_max_mps,
-                                               matrix.ds_for(cell.track), matrix.overlay,
-                                               matrix.ds_m)
+                                               matrix.ds_for(cell.track), matrix.overlay)
     opts = LoopOptions(laps=matrix.laps, estimator=cell.pose, localization=cfg.localization)
     methods: dict[str, Any] = {}
     for name in matrix.methods:
@@ -734,8 +728,8 @@ def report(cells: list[dict[str, Any]], matrix: Matrix, timings: dict[str, float
     if matrix.ds_m is not None:
         grid = f", minimum-time grid {matrix.ds_m:g} m"
     elif matrix.long_track_ds_m is not None:
-        grid = (f", the raceline's line on a {matrix.long_track_ds_m:g} m grid on tracks "
-                f"over {LONG_TRACK_M:g} m")
+        grid = (f", minimum-time grid {matrix.long_track_ds_m:g} m on tracks over "
+                f"{LONG_TRACK_M:g} m")
     else:
         grid = ""
     over = "" if not matrix.overlay else f", --config {matrix.overlay}"

@@ -220,9 +220,8 @@ def test_a_coarser_grid_puts_the_limit_and_the_raceline_s_line_on_it() -> None:
 
 
 def test_long_tracks_take_the_coarser_grid_unless_one_grid_is_given(tmp_path: Path) -> None:
-    """The whole matrix: the raceline's line on the F1TENTH maps (260-460 m) on 0.25 m, the
-    short tracks and every limit on the configuration's 0.1 m; --min-time-ds one grid for
-    all."""
+    """The whole matrix: the F1TENTH maps (260-460 m) on 0.25 m, the short tracks on the
+    configuration's 0.1 m; --min-time-ds one grid for all."""
     long_csv = tmp_path / "long.csv"
     t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
     rows = [f"{50 * np.cos(a):.4f},{40 * np.sin(a):.4f},1.1,1.1" for a in t]
@@ -232,8 +231,7 @@ def test_long_tracks_take_the_coarser_grid_unless_one_grid_is_given(tmp_path: Pa
     assert auto.ds_for(str(long_csv)) == rb.LONG_TRACK_DS_M
     assert auto.ds_for("paperlike") is None
     grids = {(t.track, t.use): t.settings.ds_m for t in rb.lap_tasks(auto)}
-    # the limit stays on the fine grid (a coarse one is no limit), the line goes coarse
-    assert grids[(str(long_csv), "limit")] == pytest.approx(0.1)
+    assert grids[(str(long_csv), "limit")] == pytest.approx(rb.LONG_TRACK_DS_M)
     assert grids[(str(long_csv), RACELINE)] == pytest.approx(rb.LONG_TRACK_DS_M)
     assert grids[("paperlike", RACELINE)] == pytest.approx(0.1)
     one = rb.Matrix((str(long_csv), "paperlike"), ("default",), ("truth",), (RACELINE,),
