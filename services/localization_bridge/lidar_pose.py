@@ -21,7 +21,7 @@ import math
 from collections import Counter
 from dataclasses import dataclass
 
-from services.localization_bridge.particle_filter import ParticleFilter, PfEstimate
+from services.localization_bridge.particle_filter import FilterMap, ParticleFilter, PfEstimate
 from services.localization_bridge.scan_check import ScanLayout, scan_problem
 from shared.config.localization import LocalizationSettings
 from shared.messages import Scan
@@ -56,6 +56,8 @@ class LidarPoseSource:
         settings: ``[localization]`` (``particle_filter``, ``init``).
         start: the start pose for ``init = "start"`` (``start_pose``).
         seed: the filter's random seed.
+        filter_map: the filter's map data, built once for `grid` (``FilterMap.build``; None:
+            built here).
     """
 
     def __init__(
@@ -64,8 +66,10 @@ class LidarPoseSource:
         settings: LocalizationSettings,
         start: tuple[float, float, float] | None,
         seed: int = 0,
+        filter_map: FilterMap | None = None,
     ) -> None:
-        self.pf = ParticleFilter(grid, settings.particle_filter, seed=seed)
+        self.pf = ParticleFilter(grid, settings.particle_filter, seed=seed,
+                                 filter_map=filter_map)
         if settings.init == "start" and start is not None:
             self.pf.init_pose(*start)
         self.counts: Counter[str] = Counter()

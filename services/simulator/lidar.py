@@ -70,6 +70,8 @@ class LidarScanner:
         fov_rad: field of view [rad].
         range_max_m: maximum range [m]; returned for beams without a return.
         unknown_is_occupied: whether unknown cells stop beams.
+        marcher: the ray marcher of `grid` (its distance transform takes seconds on a large
+            map; a process scanning one map many times builds it once); None: built here.
     """
 
     def __init__(
@@ -79,6 +81,7 @@ class LidarScanner:
         fov_rad: float = 4.7,
         range_max_m: float = 30.0,
         unknown_is_occupied: bool = True,
+        marcher: RayMarcher | None = None,
     ) -> None:
         if beams < 2 or not fov_rad > 0.0 or not range_max_m > 0.0:
             raise ValueError("need beams >= 2, fov_rad > 0 and range_max_m > 0")
@@ -88,7 +91,11 @@ class LidarScanner:
         self.angle_min_rad = -0.5 * float(fov_rad)
         self.angle_increment_rad = float(fov_rad) / (self.beams - 1)
         self._beam_angles = self.angle_min_rad + self.angle_increment_rad * np.arange(self.beams)
-        self.marcher = RayMarcher(grid, unknown_is_occupied=unknown_is_occupied, cap_m=EDT_CAP_M)
+        if marcher is None:
+            marcher = RayMarcher(grid, unknown_is_occupied=unknown_is_occupied, cap_m=EDT_CAP_M)
+        elif marcher.grid is not grid or marcher.unknown_is_occupied != unknown_is_occupied:
+            raise ValueError("marcher was built for another grid or unknown-cell rule")
+        self.marcher = marcher
         self.resolution_m = self.marcher.resolution_m
         self.distance_m = self.marcher.distance_m  # kept for inspection and tests
 

@@ -32,6 +32,7 @@ from shared.config.simulator import (
     SimulatorSettings,
 )
 from shared.track.occupancy import OccupancyGrid
+from shared.track.raycast import RayMarcher
 
 
 @dataclass(frozen=True, slots=True)
@@ -213,7 +214,11 @@ class LidarSensor:
     """Scans at a rate from the true pose, with Gaussian range noise on the returns."""
 
     def __init__(
-        self, settings: LidarSettings, grid: OccupancyGrid, rng: np.random.Generator
+        self,
+        settings: LidarSettings,
+        grid: OccupancyGrid,
+        rng: np.random.Generator,
+        marcher: RayMarcher | None = None,
     ) -> None:
         self.settings = settings
         self.rng = rng
@@ -223,6 +228,7 @@ class LidarSensor:
             fov_rad=settings.fov_rad,
             range_max_m=settings.range_max_m,
             unknown_is_occupied=settings.unknown_is_occupied,
+            marcher=marcher,
         )
         self._schedule = _Schedule(settings.rate_hz)
         #: other cars the beams also hit: (M, 3) CoG poses [x m, y m, yaw rad] (None: none)
@@ -273,15 +279,23 @@ class SensorSuite:
     Args:
         settings: simulator settings (sensor sections and seed).
         grid: occupancy map for the lidar; None disables the lidar.
+        marcher: the lidar's ray marcher, built once for `grid` (None: built here).
     """
 
-    def __init__(self, settings: SimulatorSettings, grid: OccupancyGrid | None = None) -> None:
+    def __init__(
+        self,
+        settings: SimulatorSettings,
+        grid: OccupancyGrid | None = None,
+        marcher: RayMarcher | None = None,
+    ) -> None:
         seeds = np.random.SeedSequence(settings.seed).spawn(4)
         gens = [np.random.default_rng(s) for s in seeds]
         self.pose = PoseSensor(settings.pose, gens[0], settings.vehicle.lr_m)
         self.imu = ImuSensor(settings.imu, gens[1])
         self.odometry = OdometrySensor(settings.odometry, gens[2])
-        self.lidar = LidarSensor(settings.lidar, grid, gens[3]) if grid is not None else None
+        self.lidar = (
+            LidarSensor(settings.lidar, grid, gens[3], marcher) if grid is not None else None
+        )
 
     def reset(self) -> None:
         """Restart all schedules and drop pending measurements (noise streams continue)."""

@@ -117,6 +117,7 @@ class RayMarcher:
         self, grid: OccupancyGrid, unknown_is_occupied: bool = True, cap_m: float = EDT_CAP_M
     ) -> None:
         self.grid = grid
+        self.unknown_is_occupied = bool(unknown_is_occupied)
         blocked = blocked_cells(grid, unknown_is_occupied)
         r = float(grid.resolution_m)
         self.resolution_m = r

@@ -78,3 +78,29 @@ def test_the_lateral_error_is_the_error_across_the_car() -> None:
     assert err["rms_lateral_m"] == pytest.approx(0.01)
     assert err["p95_lateral_m"] == pytest.approx(0.01)
     assert err["max_lateral_m"] == pytest.approx(0.01)
+
+
+def test_the_lidar_and_filter_maps_are_made_once_and_change_nothing(monkeypatch) -> None:
+    from services.tools.bench import estimation
+
+    for cache in ("_GRIDS", "_MARCHERS", "_FILTER_MAPS"):
+        monkeypatch.setattr(estimation, cache, {})
+    track = load_track("paperlike")
+    sim = SimulatorSettings()
+    loc = LocalizationSettings()
+    grid, marcher, fmap = estimation.lidar_maps(track, sim, loc)
+    again = estimation.lidar_maps(load_track("paperlike"), sim, loc)
+    assert again[0] is grid and again[1] is marcher and again[2] is fmap
+
+    def race(shared: bool) -> list[tuple[float, float, float]]:
+        if not shared:  # every cache empty: this run builds its own maps
+            for cache in ("_GRIDS", "_MARCHERS", "_FILTER_MAPS"):
+                monkeypatch.setattr(estimation, cache, {})
+        plant = SimulatorPlant(track, sim, LoopOptions(laps=1, estimator="lidar"))
+        out = []
+        for _ in range(60):  # 0.6 s, a dozen scans
+            plant.estimator.feed(plant.sim.step(Command(2.0, 0.0), 0.01))
+            out.append(plant.pose())
+        return out
+
+    assert race(shared=False) == race(shared=True)

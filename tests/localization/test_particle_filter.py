@@ -12,7 +12,7 @@ from pydantic import ValidationError
 
 from benchmarks.particle_filter import drive, pf_settings_for, sim_settings, time_to_localise
 from services.localization_bridge.motion_model import MotionNoise, propagate
-from services.localization_bridge.particle_filter import ParticleFilter, PfEstimate
+from services.localization_bridge.particle_filter import FilterMap, ParticleFilter, PfEstimate
 from services.localization_bridge.resampling import effective_sample_size, low_variance_indices
 from services.simulator.lidar import LidarScanner
 from shared.config.particle_filter import ParticleFilterSettings
@@ -137,6 +137,31 @@ def test_same_seed_same_output(paperlike: Grid) -> None:
 
     a, b, c = run(7), run(7), run(8)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+def test_a_shared_filter_map_gives_the_same_output_and_is_checked(paperlike: Grid) -> None:
+    grid, track = paperlike
+    lidar = LidarScanner(grid, beams=360)
+    poses = [_rear_pose(track, 3.0 + 0.1 * k) for k in range(6)]
+    scans = [_scan(lidar, p, PFS.lidar_x_m) for p in poses]
+    fmap = FilterMap.build(grid, PFS)
+
+    def run(filter_map: FilterMap | None) -> np.ndarray:
+        pf = ParticleFilter(grid, PFS, seed=3, filter_map=filter_map)
+        pf.init_pose(*poses[0])
+        for sc in scans:
+            pf.predict(0.025, 4.0, 0.0)
+            pf.update(sc)
+        return pf.poses
+
+    # one map built once serves several filters, each as if it had built its own
+    assert np.array_equal(run(None), run(fmap)) and np.array_equal(run(fmap), run(fmap))
+    with pytest.raises(ValueError, match="another grid or other settings"):
+        ParticleFilter(grid, PFS.model_copy(update={"z_rand": 0.2}), filter_map=fmap)
+    other = OccupancyGrid(grid.cells.copy(), grid.resolution_m, grid.origin_xy_m,
+                          grid.origin_yaw_rad)
+    with pytest.raises(ValueError, match="another grid"):
+        ParticleFilter(other, PFS, filter_map=fmap)
 
 
 def test_a_kidnapped_filter_says_lost_and_starts_over(paperlike: Grid) -> None:

@@ -20,33 +20,67 @@ from collections import Counter
 
 import numpy as np
 
-from services.localization_bridge import FusedEstimator, LidarPoseSource
+from services.localization_bridge import FilterMap, FusedEstimator, LidarPoseSource
+from services.localization_bridge.particle_filter import map_settings
 from services.simulator import SensorSuite, StepResult
 from shared.angles import wrap_angle
 from shared.config.localization import LocalizationSettings
 from shared.config.simulator import SimulatorSettings
 from shared.messages import Scan
 from shared.track import OccupancyGrid, Track, occupancy_for
+from shared.track.raycast import EDT_CAP_M, RayMarcher
 
 #: The estimators of ``--estimator``.
 ESTIMATORS = ("truth", "ekf", "lidar")
 #: Occupancy grids made in this process, by track (``track_grid``).
 _GRIDS: dict[tuple, OccupancyGrid] = {}
-#: ... at most this many (the robustness benchmark's workers race a few tracks each).
+#: The lidar's ray marchers and the filter's map data made in this process, by grid and
+#: settings (``lidar_maps``).
+_MARCHERS: dict[tuple, RayMarcher] = {}
+_FILTER_MAPS: dict[tuple, FilterMap] = {}
+#: ... at most this many of each (the robustness benchmark's workers race a few tracks each).
 GRID_CACHE_SIZE = 4
+
+
+def _track_key(track: Track) -> tuple:
+    return (track.name, track.source, track.n_points, float(track.length_m),
+            float(np.sum(track.xy)), float(np.sum(track.w_left_m) + np.sum(track.w_right_m)))
+
+
+def _remember(cache: dict, key: tuple, make):
+    if key not in cache:
+        if len(cache) >= GRID_CACHE_SIZE:
+            cache.pop(next(iter(cache)))
+        cache[key] = make()
+    return cache[key]
 
 
 def track_grid(track: Track) -> OccupancyGrid:
     """``occupancy_for(track)``, made once per track in a process: rasterising a generated
     track's boundaries takes 10-60 s, a quarter of a lidar cell of the robustness benchmark,
     and every car and method on that track reads the same grid (read-only)."""
-    key = (track.name, track.source, track.n_points, float(track.length_m),
-           float(np.sum(track.xy)), float(np.sum(track.w_left_m) + np.sum(track.w_right_m)))
-    if key not in _GRIDS:
-        if len(_GRIDS) >= GRID_CACHE_SIZE:
-            _GRIDS.pop(next(iter(_GRIDS)))
-        _GRIDS[key] = occupancy_for(track)
-    return _GRIDS[key]
+    return _remember(_GRIDS, _track_key(track), lambda: occupancy_for(track))
+
+
+def lidar_maps(
+    track: Track, sim_settings: SimulatorSettings, settings: LocalizationSettings
+) -> tuple[OccupancyGrid, RayMarcher, FilterMap]:
+    """The track's grid, the simulated lidar's ray marcher and the particle filter's map data,
+    each made once per process (``track_grid``'s reason: their distance transforms take
+    5-7 s per run on a 400 m F1TENTH map, 12 % of a lidar cell of the robustness benchmark);
+    all read-only, so every run on the track shares them."""
+    key = _track_key(track)
+    grid = track_grid(track)
+    unknown = sim_settings.lidar.unknown_is_occupied
+    pf = settings.particle_filter
+    marcher = _remember(_MARCHERS, (*key, unknown),
+                        lambda: RayMarcher(grid, unknown_is_occupied=unknown, cap_m=EDT_CAP_M))
+    fmap = _remember(_FILTER_MAPS, (*key, map_settings(pf)), lambda: FilterMap.build(grid, pf))
+    if marcher.grid is not grid or fmap.grid is not grid:  # the grid left its cache: rebuild
+        _MARCHERS.clear()
+        _FILTER_MAPS.clear()
+        return lidar_maps(track, sim_settings, settings)
+    return grid, marcher, fmap
 
 
 class InLoopEstimator:
@@ -72,14 +106,15 @@ class InLoopEstimator:
         if kind not in ("ekf", "lidar"):
             raise ValueError(f"estimator must be 'ekf' or 'lidar', got {kind!r}")
         self.kind = kind
-        grid = track_grid(track) if kind == "lidar" else None
-        self.sensors = SensorSuite(sim_settings, grid)
+        self.lidar: LidarPoseSource | None = None
+        if kind == "lidar":
+            grid, marcher, fmap = lidar_maps(track, sim_settings, settings)
+            self.sensors = SensorSuite(sim_settings, grid, marcher)
+            self.lidar = LidarPoseSource(grid, settings, start, seed=sim_settings.seed,
+                                         filter_map=fmap)
+        else:
+            self.sensors = SensorSuite(sim_settings, None)
         self.filter = FusedEstimator(settings)
-        self.lidar = (
-            LidarPoseSource(grid, settings, start, seed=sim_settings.seed)
-            if grid is not None
-            else None
-        )
         self.filter.pose(t0_s, *start, None, t0_s)  # the known start pose
         self._err_xy: list[float] = []
         self._err_lat: list[float] = []
