@@ -362,45 +362,117 @@ def _sign(v: np.ndarray, tol: np.ndarray | float) -> np.ndarray:
     return np.where(np.abs(v) <= tol, 0, np.sign(v))
 
 
-def _within(p: np.ndarray, a0: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Whether points p (m, 2) project strictly inside segment a0 -> a0 + r."""
-    t = ((p - a0) @ r) / float(r @ r)
-    return (t > 1e-9) & (t < 1 - 1e-9)
+#: A broad-phase cell holding more segment ends than this falls back to the all-pairs scan
+#: (a loop of a few long segments among many short ones; never a real track).
+MAX_CELL_SEGMENTS = 64
 
 
-def _within_many(p: np.ndarray, a0: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Whether point p (2,) projects strictly inside each segment a0[k] -> a0[k] + r[k]."""
-    t = np.einsum("ij,ij->i", p - a0, r) / np.einsum("ij,ij->i", r, r)
-    return (t > 1e-9) & (t < 1 - 1e-9)
+def _segment_pairs(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Candidate pairs (i, j), i < j, of closed-polyline segments whose bounding boxes (grown
+    by ``1e3 TOUCH_TOLERANCE_M``) share a cell of a uniform grid as large as the longest box
+    side: every pair that can cross or touch is among them. None when a cell is too crowded.
+    """
+    a = xy
+    b = np.roll(xy, -1, axis=0)
+    pad = 1e3 * TOUCH_TOLERANCE_M
+    lo = np.minimum(a, b) - pad
+    hi = np.maximum(a, b) + pad
+    h = float(np.max(hi - lo))
+    c_lo = np.floor((lo - lo.min(axis=0)) / h).astype(np.int64)
+    c_hi = np.floor((hi - lo.min(axis=0)) / h).astype(np.int64)
+    n = xy.shape[0]
+    ncol = int(c_hi[:, 0].max()) + 2
+    segs, cells = [], []
+    for dx in (0, 1):  # a box no larger than a cell covers at most 2 x 2 cells
+        for dy in (0, 1):
+            ok = (c_lo[:, 0] + dx <= c_hi[:, 0]) & (c_lo[:, 1] + dy <= c_hi[:, 1])
+            k = np.flatnonzero(ok)
+            segs.append(k)
+            cells.append((c_lo[k, 1] + dy) * ncol + c_lo[k, 0] + dx)
+    seg = np.concatenate(segs)
+    cell = np.concatenate(cells)
+    order = np.lexsort((seg, cell))
+    seg, cell = seg[order], cell[order]
+    starts = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+    sizes = np.diff(np.r_[starts, cell.size])
+    if sizes.max() > MAX_CELL_SEGMENTS:
+        return None
+    ii, jj = [], []
+    for off in range(1, int(sizes.max())):
+        same = cell[off:] == cell[:-off]
+        ii.append(seg[:-off][same])
+        jj.append(seg[off:][same])
+    if not ii:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    i = np.concatenate(ii)
+    j = np.concatenate(jj)  # i < j: sorted by segment within a cell
+    keep = (j - i > 1) & ~((i == 0) & (j == n - 1))  # neighbours share a vertex
+    key = np.unique(i[keep] * n + j[keep])
+    return key // n, key % n
+
+
+def _crossing(a: np.ndarray, b: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Whether segment i[k] (a -> b) properly crosses or touches segment j[k], per pair.
+
+    Orientation tests of each segment against the other; a point within TOUCH_TOLERANCE_M
+    of the other segment's line counts as on it (float noise on straights must not look like
+    a crossing), and touches only if it projects inside that segment.
+    """
+    d = b - a
+    di, dj = d[i], d[j]
+    ai, bi, aj, bj = a[i], b[i], a[j], b[j]
+    tol_i = TOUCH_TOLERANCE_M * np.hypot(di[:, 0], di[:, 1])
+    tol_j = TOUCH_TOLERANCE_M * np.hypot(dj[:, 0], dj[:, 1])
+
+    def cross(r: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return r[:, 0] * (p[:, 1] - q[:, 1]) - r[:, 1] * (p[:, 0] - q[:, 0])
+
+    def within(p: np.ndarray, q0: np.ndarray, r: np.ndarray) -> np.ndarray:
+        t = np.einsum("ij,ij->i", p - q0, r) / np.einsum("ij,ij->i", r, r)
+        return (t > 1e-9) & (t < 1 - 1e-9)
+
+    s_ac = _sign(cross(di, aj, ai), tol_i)
+    s_bc = _sign(cross(di, bj, ai), tol_i)
+    s_ca = _sign(cross(dj, ai, aj), tol_j)
+    s_da = _sign(cross(dj, bi, aj), tol_j)
+    proper = (s_ac * s_bc < 0) & (s_ca * s_da < 0)
+    touch = ((s_ac == 0) & within(aj, ai, di)) | ((s_bc == 0) & within(bj, ai, di))
+    touch |= (s_ca == 0) & within(ai, aj, dj)
+    touch |= (s_da == 0) & within(bi, aj, dj)
+    return proper | touch
 
 
 def find_self_crossing(xy: np.ndarray) -> tuple[int, int] | None:
-    """First pair (i, j) of non-adjacent closed-polyline segments that properly cross, or None."""
-    a = xy
-    b = np.roll(xy, -1, axis=0)
-    n = xy.shape[0]
-    d = b - a
+    """First pair (i, j) (smallest i, then j) of non-adjacent closed-polyline segments that
+    properly cross or touch, or None.
+
+    A uniform-grid broad phase (``_segment_pairs``) keeps the pairs whose boxes meet, so a
+    4000-point loop takes milliseconds instead of seconds; the all-pairs scan
+    (``find_self_crossing_all_pairs``) remains for crowded cells.
+    """
+    xy = np.asarray(xy, dtype=float)
+    pairs = _segment_pairs(xy)
+    if pairs is None:
+        return find_self_crossing_all_pairs(xy)
+    i, j = pairs
+    hit = _crossing(xy, np.roll(xy, -1, axis=0), i, j)
+    if not np.any(hit):
+        return None
+    k = np.flatnonzero(hit)
+    first = k[np.lexsort((j[k], i[k]))[0]]
+    return int(i[first]), int(j[first])
+
+
+def find_self_crossing_all_pairs(xy: np.ndarray) -> tuple[int, int] | None:
+    """``find_self_crossing`` by testing every pair (O(n^2), one numpy pass per segment)."""
+    a = np.asarray(xy, dtype=float)
+    b = np.roll(a, -1, axis=0)
+    n = a.shape[0]
     for i in range(n - 2):
         j = np.arange(i + 2, n if i > 0 else n - 1)
         if j.size == 0:
             continue
-        # orientation tests of segment i against segments j and vice versa; a point within
-        # TOUCH_TOLERANCE_M of the other segment's line counts as on it (float noise on
-        # straights must not look like a crossing)
-        r = d[i]
-        dj = d[j]
-        tol_i = TOUCH_TOLERANCE_M * np.hypot(*r)
-        tol_j = TOUCH_TOLERANCE_M * np.hypot(dj[:, 0], dj[:, 1])
-        s_ac = _sign(r[0] * (a[j, 1] - a[i, 1]) - r[1] * (a[j, 0] - a[i, 0]), tol_i)
-        s_bc = _sign(r[0] * (b[j, 1] - a[i, 1]) - r[1] * (b[j, 0] - a[i, 0]), tol_i)
-        s_ca = _sign(dj[:, 0] * (a[i, 1] - a[j, 1]) - dj[:, 1] * (a[i, 0] - a[j, 0]), tol_j)
-        s_da = _sign(dj[:, 0] * (b[i, 1] - a[j, 1]) - dj[:, 1] * (b[i, 0] - a[j, 0]), tol_j)
-        proper = (s_ac * s_bc < 0) & (s_ca * s_da < 0)
-        # touching: a vertex on the line of the other segment AND within that segment
-        touch = ((s_ac == 0) & _within(a[j], a[i], r)) | ((s_bc == 0) & _within(b[j], a[i], r))
-        touch |= ((s_ca == 0) & _within_many(a[i], a[j], dj))
-        touch |= ((s_da == 0) & _within_many(b[i], a[j], dj))
-        hit = proper | touch
+        hit = _crossing(a, b, np.full(j.size, i), j)
         if np.any(hit):
             return i, int(j[np.argmax(hit)])
     return None

@@ -139,6 +139,37 @@ def test_self_crossing_loop_is_rejected(tmp_path: Path) -> None:
         load_track(path)
 
 
+def test_the_broad_phase_finds_what_the_all_pairs_scan_finds() -> None:
+    from shared.track.geometry import find_self_crossing, find_self_crossing_all_pairs
+
+    rng = np.random.default_rng(5)
+    found = 0
+    for k in range(300):
+        n = int(rng.integers(4, 40))
+        if k % 3 == 0:  # random walks: crossings everywhere
+            xy = np.cumsum(rng.normal(0.0, 1.0, (n, 2)), axis=0)
+        elif k % 3 == 1:  # wobbly circles: mostly simple, some cross
+            t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+            r = 3.0 + rng.normal(0.0, 0.8, n)
+            xy = np.column_stack([r * np.cos(t), r * np.sin(t)])
+        else:  # a loop on a lattice: collinear overlaps and vertices on other segments
+            xy = rng.integers(0, 4, (n, 2)).astype(float)
+            xy = xy[np.r_[True, np.any(np.diff(xy, axis=0) != 0, axis=1)]]
+            if xy.shape[0] < 4 or np.array_equal(xy[0], xy[-1]):
+                continue
+        fast, slow = find_self_crossing(xy), find_self_crossing_all_pairs(xy)
+        assert fast == slow, (k, fast, slow)
+        found += fast is not None
+    assert 100 < found < 280  # both kinds of answer were exercised
+    # a fine loop (4000 points, 0.1 m apart) is simple; a nudge into it is found
+    t = np.linspace(0, 2 * np.pi, 4000, endpoint=False)
+    ring = np.column_stack([64 * np.cos(t), 64 * np.sin(t)])
+    assert find_self_crossing(ring) is None
+    ring[2000] = ring[10] * 1.001
+    hit = find_self_crossing(ring)
+    assert hit is not None and hit == find_self_crossing_all_pairs(ring)
+
+
 def test_missing_and_unknown_specs(tmp_path: Path) -> None:
     with pytest.raises(TrackError, match="not a built-in"):
         load_track("no_such_track")
