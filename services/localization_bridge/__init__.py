@@ -11,7 +11,12 @@ detector and tracker (``OpponentDetector``, ``OpponentTracker``).
 from services.localization_bridge.estimator import Estimate, FusedEstimator, Verdict
 from services.localization_bridge.lidar_pose import LidarPoseSource, ScanPose, start_pose
 from services.localization_bridge.opponents import OpponentDetector, OpponentTracker, ScanView
-from services.localization_bridge.particle_filter import FilterMap, ParticleFilter, PfEstimate
+from services.localization_bridge.particle_filter import (
+    FilterMap,
+    ParticleFilter,
+    PfEstimate,
+    map_settings,
+)
 from services.localization_bridge.scan_check import ScanLayout, scan_problem
 
 __all__ = [
@@ -27,6 +32,7 @@ __all__ = [
     "ScanPose",
     "ScanView",
     "Verdict",
+    "map_settings",
     "scan_problem",
     "start_pose",
 ]

@@ -20,8 +20,12 @@ from collections import Counter
 
 import numpy as np
 
-from services.localization_bridge import FilterMap, FusedEstimator, LidarPoseSource
-from services.localization_bridge.particle_filter import map_settings
+from services.localization_bridge import (
+    FilterMap,
+    FusedEstimator,
+    LidarPoseSource,
+    map_settings,
+)
 from services.simulator import SensorSuite, StepResult
 from shared.angles import wrap_angle
 from shared.config.localization import LocalizationSettings
