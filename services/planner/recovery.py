@@ -8,7 +8,12 @@ car is lost, and takes over again, from a cold start, once the car is back:
 - enter when the rear axle is more than ``enter_outside_m`` outside the boundaries, when
   the car's heading differs from the track's by more than ``enter_heading_rad``, or when
   the method has held the car still for ``stall_s`` (a car across the track is a local
-  minimum of a contouring cost);
+  minimum of a contouring cost). "The track's heading" is the projection's, except on the
+  inside of a bend, where it is the centreline's nearest the car's within ``|e_con|`` of
+  arc either side (``track_heading_error``): in a hairpin whose centreline radius is near
+  the half-width (YasMarina, 0.85 m against 1.1 m) a car cutting the apex passes near the
+  bend's centre, where the projection's heading lagged the car's by 69 degrees while it
+  raced cleanly (2 recoveries a run there before);
 - drive forwards at ``speed_mps`` along a guidance field: the wanted heading is the
   track's turned towards the centreline by the offset, ``psi_w = psi_track(s) +
   atan(k_e e_con)`` (``GUIDANCE_GAIN_PER_M``; ``e_con > 0`` right of the centreline), and the
@@ -51,6 +56,9 @@ STEER_GAIN = 1.0
 #: Largest and smallest half-width [m] of the anchored projection's search window.
 ANCHOR_WINDOW_M = 1.0
 ANCHOR_MIN_M = 0.05
+#: At most this many samples [-] either side of the projection for the track's heading
+#: beside the car (``track_heading_error``).
+HEADING_SAMPLES_MAX = 200
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,6 +68,31 @@ class RecoveryCommand:
     speed_mps: float
     steering_rad: float
     reason: str
+
+
+def track_heading_error(track: Track, yaw_rad: float, s_m: float, e_con_m: float) -> float:
+    """|yaw - the track's heading beside the car| [rad] (the module docstring).
+
+    On the inside of a bend (``e_con`` on the side the centreline turns to over ``|e_con|``
+    of arc either side of `s_m` [m]) the smallest difference to the centreline's headings
+    over that arc: there the car nears the bend's centre, where the nearest point's heading
+    says little about the car's (any chord through a point that near the centre is a line
+    a car may race). Elsewhere (a straight, the outside of a bend, the line itself) the
+    projection's own heading, where it is well defined.
+    """
+    own = abs(wrap_angle(yaw_rad - float(track.heading_at(s_m))))
+    reach = abs(float(e_con_m))
+    if reach == 0.0:
+        return own
+    spacing = track.length_m / track.n_points  # the mean segment: samples at a quarter
+    k = min(math.ceil(4.0 * reach / spacing), HEADING_SAMPLES_MAX)
+    heading = track.heading_at(s_m + np.linspace(-reach, reach, 2 * k + 1))
+    turn = np.unwrap(heading)
+    turn = float(turn[-1] - turn[0])  # > 0: the centreline turns left over the arc
+    if turn * e_con_m >= 0.0:  # e > 0 is right of the line: left of a left turn is inside
+        return own
+    d = np.abs((yaw_rad - heading + math.pi) % (2.0 * math.pi) - math.pi)
+    return min(own, float(d.min()))
 
 
 class Recovery:
@@ -125,7 +158,7 @@ class Recovery:
         w_r, w_l = (float(v) for v in self.track.interp_width(s_m))
         outside = max(e_con_m - w_r, -e_con_m - w_l)  # > 0 outside the boundaries [m]
         heading = float(self.track.heading_at(s_m))
-        heading_err = abs(wrap_angle(yaw_rad - heading))
+        heading_err = track_heading_error(self.track, yaw_rad, s_m, e_con_m)
         if not self.active:
             if outside > cfg.enter_outside_m:
                 self._enter()

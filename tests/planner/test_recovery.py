@@ -11,14 +11,20 @@ import pytest
 from services.planner.mintime.store import ensure_artefacts
 from services.planner.mpc.planner import RECOVERING, SOLVED, Planner
 from services.planner.raceline.planner import RacelinePlanner
-from services.planner.recovery import STILL_RADIUS_M, HandOver, Recovery, StallWatch
+from services.planner.recovery import (
+    STILL_RADIUS_M,
+    HandOver,
+    Recovery,
+    StallWatch,
+    track_heading_error,
+)
 from services.tools.bench import LoopOptions, run_method
 from shared.config import RacestackConfig
 from shared.config.methods import RACELINE
 from shared.config.planner import PlannerSettings, RecoverySettings
 from shared.config.simulator import SimulatorSettings
 from shared.config.vehicle import vehicle_preset
-from shared.track import load_track
+from shared.track import Track, load_track
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +69,62 @@ def test_a_spun_car_turns_round_at_full_lock(track) -> None:
     assert cmd is not None and abs(cmd.steering_rad) == pytest.approx(0.35)
     assert "heading" in cmd.reason
     assert rec.update(x, y, yaw, 8.0, 0.0) is not None  # still facing backwards: stays
+
+
+def _rounded_triangle(side_m: float = 20.0, radius_m: float = 0.85, half_width_m: float = 1.1,
+                      step_m: float = 0.1) -> tuple[Track, np.ndarray]:
+    """A left-turning loop: three straights joined by 120-degree bends of `radius_m` (the
+    centreline's radius below its half-width, like YasMarina's hairpin); the first bend's
+    centre."""
+    pts, centre0 = [], None
+    heading = 0.0
+    p = np.array([0.0, 0.0])
+    for k in range(3):
+        n = int(side_m / step_m)
+        d = np.array([math.cos(heading), math.sin(heading)])
+        pts += [p + d * step_m * i for i in range(n)]
+        p = p + d * step_m * n
+        centre = p + radius_m * np.array([-math.sin(heading), math.cos(heading)])
+        centre0 = centre if k == 0 else centre0
+        arc = int(radius_m * 2.0 * math.pi / 3.0 / step_m)
+        for i in range(arc):
+            a = heading - math.pi / 2 + (2.0 * math.pi / 3.0) * i / arc
+            pts.append(centre + radius_m * np.array([math.cos(a), math.sin(a)]))
+        heading += 2.0 * math.pi / 3.0
+        p = centre + radius_m * np.array([math.sin(heading), -math.cos(heading)])
+    xy = np.array(pts)
+    w = np.full(len(xy), half_width_m)
+    return Track("rounded-triangle", xy, w, w), centre0
+
+
+def test_a_car_cutting_a_tight_hairpin_is_not_taken_for_a_spun_one() -> None:
+    track, centre = _rounded_triangle()
+    rec = Recovery(track, RecoverySettings(), 0.324, 0.35)
+    lead = math.radians(75.0)  # the car already turned further than the bend beside it
+    for frac in np.linspace(0.1, 0.9, 9):
+        a = -math.pi / 2 + (2.0 * math.pi / 3.0) * frac  # round the first bend
+        x, y = centre + (0.85 - 0.54) * np.array([math.cos(a), math.sin(a)])  # 0.54 inside
+        yaw = a + math.pi / 2 + lead
+        s, e = (float(v) for v in track.project(np.array([x, y])))
+        assert e == pytest.approx(-0.54, abs=0.02)
+        own = abs(math.remainder(yaw - float(track.heading_at(s)), math.tau))
+        assert own > RecoverySettings().enter_heading_rad - math.radians(10)
+        assert track_heading_error(track, yaw, s, e) < RecoverySettings().enter_heading_rad
+        assert rec.update(x, y, yaw, s, e) is None
+    # on the outside of the bend the projection's heading is well defined: its own counts
+    a = -math.pi / 2 + math.pi / 3  # the bend's middle
+    x, y = centre + (0.85 + 0.5) * np.array([math.cos(a), math.sin(a)])
+    s, e = (float(v) for v in track.project(np.array([x, y])))
+    assert e == pytest.approx(0.5, abs=0.02)
+    assert track_heading_error(track, a + math.pi / 2 + lead, s, e) == pytest.approx(
+        lead, abs=math.radians(8))
+    # the same heading error on a straight, or beside the bend on the line: a spun car
+    for s in (5.0, 20.5):
+        yaw = float(track.heading_at(s))
+        assert track_heading_error(track, yaw + lead, s, 0.0) == pytest.approx(lead)
+    x, y = (float(v) for v in track.point_at(5.0))
+    cmd = rec.update(x, y, lead, 5.0, 0.0)
+    assert cmd is not None and "heading" in cmd.reason
 
 
 def test_a_car_held_still_is_moved_on(track) -> None:
