@@ -159,7 +159,15 @@ class ParticleFilterSettings(Section):
         "wall at the estimate: mean of exp(-d^2 / (2 hit_sigma^2)), 1 = all) falls below it",
     )
     lost_reinit_scans: int = Field(
-        40, ge=1, le=100000, description="lost for this many scans in a row: init_global"
+        40, ge=1, le=100000, description="lost for this many scans in a row: re-initialise "
+        "(first near the last pose it tracked, local_reinit_radius_m; then init_global)"
+    )
+    local_reinit_radius_m: NonNeg = Field(
+        2.0, le=100.0,
+        description="lost: the first re-initialisation scores poses within this of the last "
+        "pose the filter tracked, plus the odometry's distance since [m] (a car that spun "
+        "is near where it spun; a global search on a 400 m map found another place); if it "
+        "is lost again before tracking, init_global. 0: init_global at once",
     )
 
     @model_validator(mode="after")

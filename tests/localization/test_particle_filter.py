@@ -179,7 +179,36 @@ def test_a_kidnapped_filter_says_lost_and_starts_over(paperlike: Grid) -> None:
     for _ in range(30):
         est = pf.update(_scan(lidar, there, settings.lidar_x_m))
         lost_seen |= est.lost
-    assert lost_seen and pf.global_inits > inits
+    # 20 m away: first a search near where it tracked (it finds nothing), then the map
+    assert lost_seen and pf.local_inits == 1 and pf.global_inits > inits
+
+
+def test_a_filter_lost_in_a_spin_searches_near_where_it_was_first(paperlike: Grid) -> None:
+    """A spin: the scans stop matching the motion (here: the car turned 90 degrees and
+    moved 0.5 m between two scans, the odometry saying nothing of it). The random
+    particles and the re-initialisation stay within the local radius of the last tracked
+    pose, so the filter never jumps to a look-alike stretch elsewhere."""
+    grid, track = paperlike
+    settings = pf_settings_for(SIM, lost_reinit_scans=10)
+    lidar = LidarScanner(grid, beams=720)
+    here = _rear_pose(track, 5.0)
+    pf = ParticleFilter(grid, settings, seed=1)
+    pf.init_pose(*here, std_xy_m=0.02, std_yaw_rad=0.01)
+    for _ in range(5):
+        pf.update(_scan(lidar, here, settings.lidar_x_m))
+    spun = (here[0] + 0.5 * math.cos(here[2]), here[1] + 0.5 * math.sin(here[2]),
+            here[2] + math.pi / 2)
+    far = 0.0
+    for _ in range(60):
+        est = pf.update(_scan(lidar, spun, settings.lidar_x_m))
+        pf.predict(0.025, 0.0, 0.0)
+        far = max(far, float(np.max(np.hypot(pf.poses[:, 0] - here[0],
+                                             pf.poses[:, 1] - here[1]))))
+    # no particle beyond the radius (and the motion noise) of the poses it tracked
+    assert far <= settings.local_reinit_radius_m + 1.0
+    assert pf.global_inits == 1  # the constructor's only
+    x, yaw = _err(est, spun)  # (along a straight, seen across it, 0.25 m is ambiguous)
+    assert x < 0.3 and yaw < 0.05 and est.converged and not est.lost
 
 
 def test_settings_are_validated() -> None:
