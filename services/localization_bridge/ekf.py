@@ -62,6 +62,8 @@ class Ekf(IntEnum):
 
 #: State dimension.
 N = len(Ekf)
+#: ``Ekf`` as plain ints for the hot path (an IntEnum index costs a conversion each time).
+_X, _Y, _YAW, _V, _R, _BIAS, _VY = (int(i) for i in Ekf)
 _POSE_ROWS = (Ekf.X, Ekf.Y, Ekf.YAW)
 #: The pose block of P as a view (X, Y, YAW are the first three rows), not a fancy-index copy.
 _POSE_BLOCK = np.s_[: Ekf.YAW + 1, : Ekf.YAW + 1]
@@ -120,37 +122,48 @@ def initial_belief(
 
 def predict(b: Belief, t_s: float, noise: EkfNoise) -> Belief:
     """The belief moved to `t_s` [s] by the motion model (module docstring); a `t_s` at or
-    before ``b.t_s`` returns `b` unchanged."""
+    before ``b.t_s`` returns `b` unchanged.
+
+    Written for the filter's hot path (every measurement and every output predicts: 55 000
+    times in a two-lap bench run): plain ``int`` indices and element-wise ``Q`` (the same
+    arithmetic, bit for bit, as ``outer(h, h) k`` with ``h = (cos, sin)``), half the time of
+    fancy indexing.
+    """
     dt = t_s - b.t_s
     if not dt > 0.0:
         return b
-    x, y, yaw, v, r, bias, vy = b.s
+    x, y, yaw, v, r, bias, vy = b.s.tolist()
     yaw_m = yaw + 0.5 * r * dt
     c, s_ = math.cos(yaw_m), math.sin(yaw_m)
     dx = (v * c - vy * s_) * dt
     dy = (v * s_ + vy * c) * dt
     s = np.array([x + dx, y + dy, wrap_angle(yaw + r * dt), v, r, bias, vy])
     F = _EYE.copy()
-    F[Ekf.X, Ekf.YAW] = -dy
-    F[Ekf.X, Ekf.V] = c * dt
-    F[Ekf.X, Ekf.VY] = -s_ * dt
-    F[Ekf.X, Ekf.R] = -0.5 * dy * dt
-    F[Ekf.Y, Ekf.YAW] = dx
-    F[Ekf.Y, Ekf.V] = s_ * dt
-    F[Ekf.Y, Ekf.VY] = c * dt
-    F[Ekf.Y, Ekf.R] = 0.5 * dx * dt
-    F[Ekf.YAW, Ekf.R] = dt
-    Q = np.zeros((N, N))
+    F[_X, _YAW] = -dy
+    F[_X, _V] = c * dt
+    F[_X, _VY] = -s_ * dt
+    F[_X, _R] = -0.5 * dy * dt
+    F[_Y, _YAW] = dx
+    F[_Y, _V] = s_ * dt
+    F[_Y, _VY] = c * dt
+    F[_Y, _R] = 0.5 * dx * dt
+    F[_YAW, _R] = dt
     qa, qr = noise.accel_psd, noise.yaw_accel_psd
-    h = np.array([c, s_])
-    Q[:2, :2] = np.outer(h, h) * (qa * dt**3 / 3.0) + np.eye(2) * (noise.position_psd * dt)
-    Q[:2, Ekf.V] = Q[Ekf.V, :2] = h * (qa * dt * dt / 2.0)
-    Q[Ekf.V, Ekf.V] = qa * dt
-    Q[Ekf.YAW, Ekf.YAW] = qr * dt**3 / 3.0 + noise.yaw_psd * dt
-    Q[Ekf.YAW, Ekf.R] = Q[Ekf.R, Ekf.YAW] = qr * dt * dt / 2.0
-    Q[Ekf.R, Ekf.R] = qr * dt
-    Q[Ekf.BIAS, Ekf.BIAS] = noise.bias_psd * dt
-    Q[Ekf.VY, Ekf.VY] = noise.lateral_accel_psd * dt
+    q_pos = noise.position_psd * dt
+    k3 = qa * dt**3 / 3.0  # along the heading h = (c, s_): outer(h, h) k3
+    k2 = qa * dt * dt / 2.0
+    Q = np.zeros((N, N))
+    Q[_X, _X] = c * c * k3 + q_pos
+    Q[_X, _Y] = Q[_Y, _X] = c * s_ * k3
+    Q[_Y, _Y] = s_ * s_ * k3 + q_pos
+    Q[_X, _V] = Q[_V, _X] = c * k2
+    Q[_Y, _V] = Q[_V, _Y] = s_ * k2
+    Q[_V, _V] = qa * dt
+    Q[_YAW, _YAW] = qr * dt**3 / 3.0 + noise.yaw_psd * dt
+    Q[_YAW, _R] = Q[_R, _YAW] = qr * dt * dt / 2.0
+    Q[_R, _R] = qr * dt
+    Q[_BIAS, _BIAS] = noise.bias_psd * dt
+    Q[_VY, _VY] = noise.lateral_accel_psd * dt
     P = F @ b.P @ F.T + Q
     return Belief(t_s, s, 0.5 * (P + P.T))
 

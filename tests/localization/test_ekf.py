@@ -247,3 +247,41 @@ def test_without_latency_compensation_readings_are_still_judged_by_their_own_sta
     assert est.teleport(1.0, -3.0, 4.0, 0.0, 0.0, 1.02) is Verdict.TELEPORT
     assert est.pose(0.99, 2.0, 0.0, 0.0, None, 1.03) is Verdict.STALE
     assert est.pose(1.025, -3.0, 4.0, 0.0, None, 1.03) is Verdict.APPLIED
+
+
+def test_the_prediction_is_the_module_docstrings_model_bit_for_bit() -> None:
+    """``predict`` (written for speed) against the model as the docstring writes it: the
+    Jacobian F, Q from ``outer(h, h)`` along the heading, ``P = F P F^T + Q``."""
+    from services.localization_bridge.ekf import Belief, Ekf, predict
+    from shared.angles import wrap_angle
+    from shared.config.localization import EkfNoise
+
+    noise = EkfNoise()
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        m = rng.normal(size=(7, 7))
+        b = Belief(0.0, rng.normal(size=7) * [10, 10, 3, 4, 2, 0.1, 0.5], m @ m.T)
+        dt = float(rng.uniform(1e-4, 0.2))
+        x, y, yaw, v, r, bias, vy = b.s
+        yaw_m = yaw + 0.5 * r * dt
+        c, s_ = math.cos(yaw_m), math.sin(yaw_m)
+        dx, dy = (v * c - vy * s_) * dt, (v * s_ + vy * c) * dt
+        F = np.eye(7)
+        F[Ekf.X, [Ekf.YAW, Ekf.V, Ekf.VY, Ekf.R]] = [-dy, c * dt, -s_ * dt, -0.5 * dy * dt]
+        F[Ekf.Y, [Ekf.YAW, Ekf.V, Ekf.VY, Ekf.R]] = [dx, s_ * dt, c * dt, 0.5 * dx * dt]
+        F[Ekf.YAW, Ekf.R] = dt
+        qa, qr = noise.accel_psd, noise.yaw_accel_psd
+        h = np.array([c, s_])
+        Q = np.zeros((7, 7))
+        Q[:2, :2] = np.outer(h, h) * (qa * dt**3 / 3.0) + np.eye(2) * (noise.position_psd * dt)
+        Q[:2, Ekf.V] = Q[Ekf.V, :2] = h * (qa * dt * dt / 2.0)
+        Q[Ekf.V, Ekf.V] = qa * dt
+        Q[Ekf.YAW, Ekf.YAW] = qr * dt**3 / 3.0 + noise.yaw_psd * dt
+        Q[Ekf.YAW, Ekf.R] = Q[Ekf.R, Ekf.YAW] = qr * dt * dt / 2.0
+        Q[Ekf.R, Ekf.R] = qr * dt
+        Q[Ekf.BIAS, Ekf.BIAS] = noise.bias_psd * dt
+        Q[Ekf.VY, Ekf.VY] = noise.lateral_accel_psd * dt
+        P = F @ b.P @ F.T + Q
+        got = predict(b, dt, noise)
+        want_s = [x + dx, y + dy, wrap_angle(yaw + r * dt), v, r, bias, vy]
+        assert np.array_equal(got.s, want_s) and np.array_equal(got.P, 0.5 * (P + P.T))
