@@ -153,6 +153,13 @@ class RacelineSettings(Section):
         0.02, ge=0.0, le=1.0,
         description="min_time: keep the car's footprint this far inside the boundaries [m]",
     )
+    min_time_steering_fraction: float = Field(
+        1.0, ge=0.5, le=1.0,
+        description="min_time: the line steers within this fraction of the planner's "
+        "[planner.bounds] delta_rad, the rest a reserve for the tracker's feedback (1: the "
+        "whole range; where a line holds the lock, as the gym's linear tyres do in tight "
+        "bends, a car off it has no steering left to come back) [1]",
+    )
     servo_margin_m: float = Field(
         0.03, ge=0.0, le=1.0,
         description="min_time, a car with a slow servo (its lag inverted by the tracker, "

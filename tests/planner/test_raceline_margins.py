@@ -26,6 +26,18 @@ def test_a_slow_servo_widens_the_line_s_margin_and_the_gym_car_keeps_its_own() -
     assert raceline_request(settings).settings.margin_m == pytest.approx(0.02)
 
 
+def test_the_line_keeps_a_steering_reserve_only_when_asked() -> None:
+    full = PlannerSettings()
+    lo, hi = full.bounds.delta_rad
+    car, _ = raceline_request(full)
+    assert car is F1TENTH_GYM or (car.steering_min_rad, car.steering_max_rad) == (lo, hi)
+    reserve = PlannerSettings(raceline=RacelineSettings(min_time_steering_fraction=0.9))
+    car9, _ = raceline_request(reserve)
+    assert car9.steering_min_rad == pytest.approx(0.9 * lo)
+    assert car9.steering_max_rad == pytest.approx(0.9 * hi)
+    assert car9 != car  # another lap (another cache key)
+
+
 def test_each_pose_source_adds_its_own_margin() -> None:
     settings = PlannerSettings(raceline=RacelineSettings(ekf_margin_m=0.01, lidar_margin_m=0.03))
     assert for_pose_source(settings, "truth") is settings

@@ -13,7 +13,8 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
   speed ``v_max_mps``, margin ``line_margin_m`` and, with Pacejka tyres, the reserves
   ``slip_fraction`` and ``ellipse_fraction``;
 - ``raceline``: the raceline baseline's line with ``[planner.raceline] line = "min_time"``
-  (``raceline_request``): the car's steering within the planner's bounds, top speed
+  (``raceline_request``): the car's steering within ``min_time_steering_fraction`` of the
+  planner's bounds (1: all of them), top speed
   ``v_max_mps``, grid ``ds_m``, margin ``min_time_margin_m`` and the Pacejka reserves
   ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``
   and its high-speed reserve (``min_time_reserve_speed_mps``, ``_fraction``, ``_width_mps``);
@@ -189,9 +190,10 @@ def raceline_request(
 ) -> LapRequest:
     """The lap the raceline baseline tracks with ``line = "min_time"`` (module docstring)
     for `car` (None: the F1TENTH gym's) with the planner `settings`."""
+    f = settings.raceline.min_time_steering_fraction
     bounds = settings.bounds.delta_rad
     return LapRequest(
-        planning_vehicle(car or F1TENTH_GYM, (bounds[0], bounds[1])),
+        planning_vehicle(car or F1TENTH_GYM, (f * bounds[0], f * bounds[1])),
         min_time_settings(settings.raceline, car),
     )
 
