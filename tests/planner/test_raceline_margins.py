@@ -36,6 +36,19 @@ def test_the_line_keeps_a_steering_reserve_only_when_asked() -> None:
     assert car9.steering_min_rad == pytest.approx(0.9 * lo)
     assert car9.steering_max_rad == pytest.approx(0.9 * hi)
     assert car9 != car  # another lap (another cache key)
+    # ... and the planner loads that lap, its tracker keeping the whole range
+    from services.planner.raceline.planner import RacelinePlanner
+    from shared.track import load_track
+
+    asked = []
+
+    def loader(track, car_, settings_):
+        asked.append(car_)
+        raise RuntimeError("recorded")
+
+    with pytest.raises(RuntimeError, match="recorded"):
+        RacelinePlanner(load_track("paperlike"), reserve, min_time_loader=loader)
+    assert asked == [car9]
 
 
 def test_each_pose_source_adds_its_own_margin() -> None:

@@ -190,12 +190,19 @@ def raceline_request(
 ) -> LapRequest:
     """The lap the raceline baseline tracks with ``line = "min_time"`` (module docstring)
     for `car` (None: the F1TENTH gym's) with the planner `settings`."""
-    f = settings.raceline.min_time_steering_fraction
-    bounds = settings.bounds.delta_rad
     return LapRequest(
-        planning_vehicle(car or F1TENTH_GYM, (f * bounds[0], f * bounds[1])),
+        planning_vehicle(car or F1TENTH_GYM, raceline_steering_limits(settings)),
         min_time_settings(settings.raceline, car),
     )
+
+
+def raceline_steering_limits(settings: PlannerSettings) -> tuple[float, float]:
+    """The steering range [rad] the raceline's minimum-time line is planned within: the
+    planner's ``[planner.bounds] delta_rad`` times ``[planner.raceline]
+    min_time_steering_fraction`` (the tracker itself commands the whole range)."""
+    f = settings.raceline.min_time_steering_fraction
+    lo, hi = settings.bounds.delta_rad
+    return f * lo, f * hi
 
 
 def limit_request(

@@ -52,7 +52,11 @@ import numpy as np
 from services.planner.interface import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
 from services.planner.mintime.model import servo_reach
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
-from services.planner.mintime.requests import min_time_settings, planning_vehicle
+from services.planner.mintime.requests import (
+    min_time_settings,
+    planning_vehicle,
+    raceline_steering_limits,
+)
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
 from services.planner.opponents import OpponentEstimate, predict_on_line
 from services.planner.raceline.join import MAX_SLOPE as MAX_JOIN_SLOPE
@@ -459,7 +463,8 @@ class RacelinePlanner:
         self._delta_lim = (b.delta_rad[0], b.delta_rad[1])
         self._speed_lim = (b.v_l_mps[0], b.v_l_mps[1])
         self.raceline = raceline or build_raceline(
-            track, settings.raceline, self.vehicle, self._delta_lim, min_time_loader
+            track, settings.raceline, self.vehicle, raceline_steering_limits(settings),
+            min_time_loader,
         )
         self.raceline = scaled_raceline(self.raceline, speed_scale, self.vehicle)
         self.overtake = overtake or OvertakeParams()
