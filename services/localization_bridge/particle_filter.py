@@ -190,10 +190,9 @@ class ParticleFilter:
         self.global_inits = 0  #: global initialisations (asked for or after being lost)
         self.local_inits = 0  #: re-initialisations near the last tracked pose (when lost)
         #: the last pose the filter tracked (converged, not lost) and the odometry's
-        #: distance since [m]; whether a local re-initialisation was tried since
+        #: distance since [m]
         self._good_pose: tuple[float, float] | None = None
         self._travel_m = 0.0
-        self._local_tried = False
         self._near: tuple[float, float, float] | None = None  # pending local search
         self._near_search = False  # searching near since init_local, not yet tracking
         self._free_mask: np.ndarray | None = None
@@ -378,7 +377,7 @@ class ParticleFilter:
             if est.converged:
                 self._good_pose = (est.x_m, est.y_m)
                 self._travel_m = 0.0
-                self._local_tried = self._near_search = False
+                self._near_search = False
         return est
 
     def _injected(self, k: int) -> np.ndarray:
@@ -395,10 +394,10 @@ class ParticleFilter:
         """Lost: search near the last pose tracked (its radius plus the odometry's distance
         since), once; lost again before tracking: the whole map."""
         st = self.settings
+        # (a global restart forgets the good pose: after it, only the whole map again)
         if self._good_pose is not None and st.local_reinit_radius_m > 0.0 and not (
-            self._local_tried
+            self._near_search
         ):
-            self._local_tried = True
             self.init_local(*self._good_pose, st.local_reinit_radius_m + self._travel_m)
         else:
             self.init_global()
