@@ -11,7 +11,7 @@ from shared.curvature import curvature_profile
 from shared.track import BUILTIN_TRACKS, Track, TrackError, load_ros_map, load_track
 from shared.track.builtin_design import DESIGNS, render_csv, sample_design
 from shared.track.io import load_waypoint_triple
-from shared.track.occupancy import FREE, OCCUPIED, rasterize_track
+from shared.track.occupancy import FREE, MAX_LOCAL_TURN_RAD, OCCUPIED, inside_cells, rasterize_track
 
 
 def circle_track(radius: float = 5.0, n: int = 500, width: float = 0.6) -> Track:
@@ -222,6 +222,51 @@ def test_rasterised_track_is_free_inside() -> None:
     outside = tr.xy[::50] - 1.5 * tr.left_normal_unit()[::50]
     assert grid.occupied_at(outside).all()
     assert set(np.unique(grid.cells)) <= {FREE, OCCUPIED}
+
+
+def _inside_everywhere(tr: Track, step_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Grid points around `tr` and ``Track.is_inside`` at each (the all-segments oracle)."""
+    lo = np.minimum(tr.left_boundary.min(0), tr.right_boundary.min(0)) - 1.0
+    hi = np.maximum(tr.left_boundary.max(0), tr.right_boundary.max(0)) + 1.0
+    cx = np.arange(lo[0], hi[0], step_m)
+    cy = np.arange(lo[1], hi[1], step_m)
+    gx, gy = np.meshgrid(cx, cy)
+    oracle = tr.is_inside(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(cy.size, cx.size)
+    return cx, cy, oracle
+
+
+def _polygon_track(corners: np.ndarray, per_side: int, width: float) -> Track:
+    """A closed loop through `corners` (straight sides, sharp corners), `per_side` points each."""
+    pts = []
+    for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True):
+        f = np.linspace(0.0, 1.0, per_side, endpoint=False)[:, None]
+        pts.append(a + f * (b - a))
+    xy = np.concatenate(pts)
+    n = xy.shape[0]
+    return Track("polygon", xy, np.full(n, width), np.full(n, width))
+
+
+@pytest.mark.parametrize("spec", ["gen:3", "gen:7", "gen:19", "paperlike"])
+def test_inside_cells_is_the_full_projection(spec: str) -> None:
+    """The local rasteriser gives exactly ``Track.is_inside`` at every grid point."""
+    tr = load_track(spec)
+    cx, cy, oracle = _inside_everywhere(tr, 0.13)
+    fast = inside_cells(tr, cx, cy)
+    assert oracle.sum() > 1000
+    np.testing.assert_array_equal(fast, oracle)
+
+
+@pytest.mark.parametrize("sides", [3, 4, 7])
+def test_inside_cells_at_sharp_corners(sides: int) -> None:
+    """Corners of 120 / 90 / 51 degrees: beyond ``MAX_LOCAL_TURN_RAD`` the full search, below
+    it the local one with its reach grown by 1 / cos(turn); both equal the oracle, also on
+    the points outside a corner whose nearest centreline point is the vertex."""
+    ang = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
+    tr = _polygon_track(6.0 * np.column_stack([np.cos(ang), np.sin(ang)]), 30, 0.8)
+    turn = 2.0 * np.pi / sides
+    assert (turn > MAX_LOCAL_TURN_RAD) == (sides < 5)
+    cx, cy, oracle = _inside_everywhere(tr, 0.07)
+    np.testing.assert_array_equal(inside_cells(tr, cx, cy), oracle)
 
 
 # ---------------------------------------------------------------- real data in ../shared
