@@ -158,7 +158,11 @@ class Recovery:
         w_r, w_l = (float(v) for v in self.track.interp_width(s_m))
         outside = max(e_con_m - w_r, -e_con_m - w_l)  # > 0 outside the boundaries [m]
         heading = float(self.track.heading_at(s_m))
-        heading_err = track_heading_error(self.track, yaw_rad, s_m, e_con_m)
+        heading_err = abs(wrap_angle(yaw_rad - heading))  # the projection's own
+        if self.active or heading_err > cfg.enter_heading_rad:
+            # the arc's search only lowers it: needed where it could decide (the exit
+            # test, or an entry the own heading would make); 80 us a tick otherwise
+            heading_err = track_heading_error(self.track, yaw_rad, s_m, e_con_m)
         if not self.active:
             if outside > cfg.enter_outside_m:
                 self._enter()
