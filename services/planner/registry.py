@@ -49,6 +49,15 @@ def make_planner(
     return PlannerPool(track, vehicle).planner(settings, method, curvature)
 
 
+#: Fields of a line method's section that its problem does not read (parameters and the
+#: planner's own Python: the weights, the solver's tolerances, the pose lead and the speed
+#: estimate's gains), so planners of the same line for other pose sources share it.
+LINE_FIELDS_OUTSIDE_PROBLEM = frozenset({
+    "weights", "solver", "lead_pose_s",
+    "speed_estimate_gain", "ekf_speed_estimate_gain", "lidar_speed_estimate_gain",
+})
+
+
 def _problem_key(setup: MethodSetup, vehicle: DynamicVehicleParams | None) -> tuple:
     """What fixes an MPC method's problem: its line, model, structure and layout (not its
     weights, which are parameters)."""
@@ -58,7 +67,7 @@ def _problem_key(setup: MethodSetup, vehicle: DynamicVehicleParams | None) -> tu
         line = (
             setup.spec.section,
             getattr(s, setup.spec.section or "").model_dump_json(
-                exclude={"weights", "solver", "lead_pose_s"}
+                exclude=LINE_FIELDS_OUTSIDE_PROBLEM
             ),
         )
     car = None

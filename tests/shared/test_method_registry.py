@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 
 from services.planner import Planner, PlannerPool, make_planner
+from services.planner.mintime.requests import for_pose_source
+from services.planner.registry import _problem_key
 from services.tools.bench.run import BenchError, parse_methods
 from services.tools.cli import build_parser
 from shared.config import ConfigError, config_from_dict
@@ -160,3 +162,20 @@ def test_the_pool_shares_problems_of_the_same_structure() -> None:
     longer = UNCOMPILED.model_copy(update={"horizon_steps": 12})
     d = pool.planner(longer, CIMPCC)
     assert d.problem is not a.problem and pool.built == (2, 2)
+
+
+def test_a_line_method_shares_its_problem_across_pose_sources() -> None:
+    """``cimpcc-line`` for the EKF or the lidar differs from the true pose's only in its
+    speed estimate's gain (the planner's own Python): one problem and solver in a pool; a
+    field the problem reads (the line's margin) still makes another."""
+    base = PlannerSettings()
+    keys = {
+        pose: _problem_key(method_setup(for_pose_source(base, pose), CIMPCC_LINE), None)
+        for pose in ("truth", "ekf", "lidar")
+    }
+    gains = {for_pose_source(base, p).cimpcc_line.speed_estimate_gain for p in keys}
+    assert len(gains) > 1  # the settings do differ ...
+    assert keys["truth"] == keys["ekf"] == keys["lidar"]  # ... not in the problem
+    wider = base.model_copy(update={"cimpcc_line": base.cimpcc_line.model_copy(
+        update={"line_margin_m": base.cimpcc_line.line_margin_m + 0.01})})
+    assert _problem_key(method_setup(wider, CIMPCC_LINE), None) != keys["truth"]
