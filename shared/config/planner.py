@@ -294,6 +294,30 @@ class RacelineSettings(Section):
         description="grip adaptation: the lowest speed scale (0.7 of the plan's speeds, "
         "0.49 of its lateral acceleration) [1]",
     )
+    start_speed_scale: float = Field(
+        0.8, gt=0.1, le=1.0,
+        description="cautious out lap: a run starts at this share of the line's speeds (the "
+        "grip adaptation's scale), held over start_hold_share of the lap, then raised by "
+        "start_rise_per_tick back to 1 unless the adaptation cut it; only on a line the car "
+        "can drive slower (its tightest curvature within the steering lock's turn; a "
+        "linear-tyre line drifts tighter). The identified car on the gym car's line spun in "
+        "its first bends before the adaptation acted (README, issue #21); 1: off",
+    )
+    start_hold_share: float = Field(
+        0.5, ge=0.0, le=1.0,
+        description="cautious out lap: the share of the line's length driven at "
+        "start_speed_scale before it rises [1]",
+    )
+    start_rise_per_tick: float = Field(
+        0.005, gt=0.0, le=1.0,
+        description="cautious out lap: the speed scale's rise per tick after the hold (0.1 "
+        "a second at 20 Hz: at once, it put two known cars off in their out lap) [1]",
+    )
+    start_grip_error_m: float = Field(
+        0.15, gt=0.0, le=2.0,
+        description="cautious out lap: the grip adaptation's grip_error_m while it lasts "
+        "(the car below its plan strays less; a slide caught at 0.15 m instead of 0.3) [m]",
+    )
     speed_delay_s: float = Field(
         0.012, ge=0.0, le=1.0,
         description="tracker: pose -> speed loop (compute 2 ms + actuation 10 ms) [s]",

@@ -3,6 +3,7 @@ one per pose source (``services.planner.mintime.requests``)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -72,14 +73,17 @@ def test_each_pose_source_adds_its_own_margin() -> None:
                for p in POSE_MARGINS if not getattr(plain.raceline, f"{p}_margin_m", 0.0))
 
 
-def _circle_planner(**raceline):
+def _circle_planner(radius: float = 3.0, width: float = 0.6, **raceline):
+    """A raceline planner on a circle (its line 0.2 m outside the centreline); the cautious
+    out lap off unless asked (these tests judge the grip adaptation from the plan's speed)."""
     from services.planner.raceline.planner import RacelinePlanner
     from tests.planner.test_raceline import circle, circle_lap
 
-    tr = circle(3.0, n=300, width=0.6)
+    raceline.setdefault("start_speed_scale", 1.0)
+    tr = circle(radius, n=300, width=width)
     settings = PlannerSettings(method="raceline", raceline=RacelineSettings(**raceline))
     return RacelinePlanner(tr, settings, min_time_loader=lambda t, v, s: circle_lap(
-        t, 3.0, 3.5, 0.15))
+        t, radius, 3.5, 0.15))
 
 
 def _rear_axle_at(planner, s: float, offset_m: float = 0.0) -> tuple[float, float, float]:
@@ -175,3 +179,71 @@ def test_beside_a_car_or_returning_from_it_the_adaptation_does_not_judge() -> No
         planner.step(*_rear_axle_at(planner, 0.3 * k))
     planner.step(*_rear_axle_at(planner, 0.3 * 28, 0.35))
     assert planner.speed_scale < 1.0
+
+
+def test_the_out_lap_starts_cautious_and_rises_to_the_plan_after_half_the_line() -> None:
+    """``start_speed_scale``: the run starts at 0.8 of the line's speeds, holds it over
+    ``start_hold_share`` of the line, then rises ``start_rise_per_tick`` a tick to 1; the
+    speed command follows the scale."""
+    planner = _circle_planner(start_speed_scale=0.8, start_hold_share=0.5,
+                              start_rise_per_tick=0.05)
+    length = planner.raceline.track.length_m  # 2 pi 3.2 = 20.1 m
+    assert planner.drivable_slower and planner.speed_scale == 0.8
+    step = 0.3
+    k = 0
+    while step * (k + 1) < 0.5 * length:  # the first half of the line: held
+        res = planner.step(*_rear_axle_at(planner, step * k))
+        assert planner.speed_scale == 0.8
+        k += 1
+    held = res.command.speed_mps
+    scales = []
+    for j in range(k, k + 12):
+        planner.step(*_rear_axle_at(planner, step * j))
+        scales.append(planner.speed_scale)
+    assert scales[-1] == 1.0 and scales.index(1.0) >= 3  # risen gradually, not at once
+    assert all(b - a <= 0.05 + 1e-12 for a, b in itertools.pairwise(scales))
+    full = planner.step(*_rear_axle_at(planner, step * (k + 12))).command.speed_mps
+    assert held == pytest.approx(0.8 * full, rel=0.05)
+    planner.reset()
+    assert planner.speed_scale == 0.8  # every run starts cautious
+
+
+def test_a_slide_in_the_cautious_out_lap_ends_it_and_the_adaptation_keeps_the_scale() -> None:
+    """... judged at ``start_grip_error_m`` (0.15 m) while it lasts, ``grip_error_m`` (0.3 m)
+    after it."""
+    grip = dict(grip_error_m=0.3, start_grip_error_m=0.15, grip_step=0.05, grip_min_scale=0.5)
+    planner = _circle_planner(start_speed_scale=0.8, start_hold_share=0.3,
+                              start_rise_per_tick=0.05, **grip)
+    for k in range(8):  # on the line
+        planner.step(*_rear_axle_at(planner, 0.3 * k))
+    for k in range(8, 12):  # 0.2 m off it: a slide for the cautious lap, cut once; the
+        # lap is over then and the adaptation judges at grip_error_m again
+        planner.step(*_rear_axle_at(planner, 0.3 * k, 0.2))
+    assert planner.speed_scale == pytest.approx(0.8 * 0.95)
+    for k in range(12, 15):  # 0.35 m off: cut on
+        planner.step(*_rear_axle_at(planner, 0.3 * k, 0.35))
+    cut = planner.speed_scale
+    assert cut == pytest.approx(0.8 * 0.95**4)
+    for k in range(15, 60):  # back on the line, past the hold: no rise any more
+        planner.step(*_rear_axle_at(planner, 0.3 * k))
+    assert planner.speed_scale == cut
+    done = _circle_planner(start_speed_scale=0.8, start_hold_share=0.0,
+                           start_rise_per_tick=0.5, **grip)
+    for k in range(8):  # the cautious lap over at once: back to the plan
+        done.step(*_rear_axle_at(done, 0.3 * k))
+    assert done.speed_scale == 1.0
+    for k in range(8, 12):  # 0.2 m off: within grip_error_m now
+        done.step(*_rear_axle_at(done, 0.3 * k, 0.2))
+    assert done.speed_scale == 1.0
+
+
+def test_a_line_tighter_than_the_lock_starts_at_its_own_speeds() -> None:
+    """A line bending tighter than the steering lock turns the car (a ``linear`` car's
+    drift) cannot be driven slower: no cautious start on it."""
+    tight = _circle_planner(radius=0.5, width=0.3, start_speed_scale=0.8)
+    wheelbase = tight.vehicle.lf_m + tight.vehicle.lr_m
+    turn = math.tan(min(-tight._delta_lim[0], tight._delta_lim[1])) / wheelbase
+    assert 1.0 / 0.7 > turn  # the line's radius 0.7 m: tighter than the lock's turn
+    assert not tight.drivable_slower and tight.speed_scale == 1.0
+    wide = _circle_planner(start_speed_scale=0.8)
+    assert wide.drivable_slower and wide.speed_scale == 0.8

@@ -500,7 +500,14 @@ class RacelinePlanner:
         self._stall.reset()
         self._handover.active = False
         #: the grip adaptation's speed scale (``step``): 1 until the car strays off the line
-        self.speed_scale = 1.0
+        #: (the cautious out lap's start scale on a line the car can drive slower)
+        o = self.options
+        cautious = o.start_speed_scale < 1.0 and self.drivable_slower
+        self.speed_scale = o.start_speed_scale if cautious else 1.0
+        #: the cautious out lap (``_cautious_start``): "hold", "rise" or None (over)
+        self._start_phase: str | None = "hold" if cautious else None
+        self._start_travel_m = 0.0  #: the line's length driven since the start [m]
+        self._start_s: float | None = None  #: the line station of the last tick [m]
         #: reached the line since the start, the last recovery or the last manoeuvre
         #: around a car (the grip adaptation judges only then)
         self._on_line = False
@@ -702,6 +709,7 @@ class RacelinePlanner:
         tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset,
                                   speed_scale=self.speed_scale, offset_slope=slope)
         self._s_line = tc.s_m
+        self._cautious_start(tc.s_m)
         if plan is FREE and (self._join is not None or self._offset == 0.0):
             # judged from the line or a join's path, never beside a car: there the car lags
             # its ramped offset by more than a slide (with grip_error_m 0.3 the adaptation
@@ -746,6 +754,38 @@ class RacelinePlanner:
             on_command(cmd)
         return self._result(cmd, x_m, y_m, yaw_rad, tc.s_m, s_t, e_t, "tracker", t0)
 
+    @cached_property
+    def drivable_slower(self) -> bool:
+        """Whether the line can be driven below its speeds: its tightest curvature is within
+        what the steering lock turns the car kinematically (``tan(delta_max) / L``). A
+        minimum-time lap of unbounded (``linear``) tyres drifts through its tightest bends
+        1.4-2.8 times tighter than that (README, issue #21): slower, without the line's
+        slip, the car turns at its lock's radius and runs wide."""
+        wheelbase = self.vehicle.lf_m + self.vehicle.lr_m
+        turn = math.tan(min(-self._delta_lim[0], self._delta_lim[1])) / wheelbase
+        return float(np.max(np.abs(self.raceline.reference.kappa_1pm))) <= turn
+
+    def _cautious_start(self, s_line_m: float) -> None:
+        """The cautious out lap (``[planner.raceline] start_speed_scale``): the speed scale
+        held at the start's over ``start_hold_share`` of the line, then raised by
+        ``start_rise_per_tick`` to 1; over for good once the grip adaptation cuts it (the
+        car slid: the adaptation owns the scale from then on)."""
+        if self._start_phase is None:
+            return
+        o = self.options
+        length = self.raceline.track.length_m
+        if self._start_s is not None:  # forward progress along the line (wrapped)
+            self._start_travel_m += max(
+                0.0, (s_line_m - self._start_s + 0.5 * length) % length - 0.5 * length)
+        self._start_s = s_line_m
+        if self._start_phase == "hold":
+            if self._start_travel_m >= o.start_hold_share * length:
+                self._start_phase = "rise"
+            return
+        self.speed_scale = min(1.0, self.speed_scale + o.start_rise_per_tick)
+        if self.speed_scale >= 1.0:
+            self._start_phase = None
+
     def _adapt_grip(self, e_line_m: float) -> None:
         """The grip adaptation: a tick with the car's CoG more than ``grip_error_m`` off the
         line (once it has reached the line since the start, the last recovery or the last
@@ -759,8 +799,12 @@ class RacelinePlanner:
             # slide
             self._on_line = abs(e_line_m) < 0.5 * o.grip_error_m
             return
-        if o.grip_error_m > 0.0 and abs(e_line_m) > o.grip_error_m:
+        limit = o.grip_error_m
+        if self._start_phase is not None:  # the cautious out lap judges more closely
+            limit = min(limit, o.start_grip_error_m)
+        if o.grip_error_m > 0.0 and abs(e_line_m) > limit:
             self.speed_scale = max(o.grip_min_scale, self.speed_scale * (1.0 - o.grip_step))
+            self._start_phase = None  # the car slid: no cautious start to end
 
     def _start_join(self, cx: float, cy: float, hint: float | None) -> LineJoin | None:
         """The join onto the line from the CoG (`cx`, `cy`) [m] (``raceline.join``), or
