@@ -272,7 +272,8 @@ def test_a_grip_adapted_car_steers_for_the_speed_it_is_held_at() -> None:
     with the identified car: 12 and 15 off-track events, issue #21)."""
     track = load_track("paperlike")
     planner = RacelinePlanner(track, PlannerSettings(raceline=RacelineSettings(
-        line="min_curvature")), vehicle=F1TENTH_GYM)
+        line="min_curvature", start_speed_scale=1.0)),  # the line's own speeds at once
+        vehicle=F1TENTH_GYM)
     ref = planner.raceline.reference
     s = float(ref.s_m[int(np.argmax(ref.v_mps))])
     x, y = ref.line.point_at(s)

@@ -229,7 +229,9 @@ def test_the_default_line_is_the_min_time_lap_planned_within_the_steering_bounds
         calls.append((track, vehicle, settings))
         return circle_lap(track, 3.0, 3.5, 0.15)
 
-    settings = PlannerSettings(method="raceline")
+    # the line's own speeds from the first step (no cautious out lap)
+    settings = PlannerSettings(method="raceline",
+                               raceline=RacelineSettings(start_speed_scale=1.0))
     planner = RacelinePlanner(tr, settings, min_time_loader=loader)
     ((track, car, mt),) = calls
     assert track is tr
