@@ -761,9 +761,14 @@ class RacelinePlanner:
         minimum-time lap of unbounded (``linear``) tyres drifts through its tightest bends
         1.4-2.8 times tighter than that (README, issue #21): slower, without the line's
         slip, the car turns at its lock's radius and runs wide."""
+        return float(np.max(np.abs(self.raceline.reference.kappa_1pm))) <= self._turn_1pm
+
+    @cached_property
+    def _turn_1pm(self) -> float:
+        """The tightest curvature the steering lock turns the car at, kinematically
+        (``tan(delta_max) / L``) [1/m]."""
         wheelbase = self.vehicle.lf_m + self.vehicle.lr_m
-        turn = math.tan(min(-self._delta_lim[0], self._delta_lim[1])) / wheelbase
-        return float(np.max(np.abs(self.raceline.reference.kappa_1pm))) <= turn
+        return math.tan(min(-self._delta_lim[0], self._delta_lim[1])) / wheelbase
 
     def _cautious_start(self, s_line_m: float) -> None:
         """The cautious out lap (``[planner.raceline] start_speed_scale``): the speed scale
@@ -813,8 +818,7 @@ class RacelinePlanner:
         s_l, e_l = self.tracker.project(cx, cy, hint)
         q = -np.asarray(self.raceline.offset_m, dtype=float)  # right + from the centreline
         e0 = e_l + float(np.interp(s_l, line.s_m, q, period=line.length_m))
-        wheelbase = self.vehicle.lf_m + self.vehicle.lr_m
-        turn = math.tan(min(-self._delta_lim[0], self._delta_lim[1])) / wheelbase
+        turn = self._turn_1pm
         # the blend's lateral speed is the same joining slowly (peaky tyres, JOIN_SPEED_MPS)
         # as at the line's top speed: a steeper, shorter blend (a long one at 2 m/s left
         # the identified car ramping up into map416's first bend)
