@@ -77,6 +77,8 @@ _H_YAW_RATE[0, Ekf.R] = 1.0
 _H_GYRO = np.zeros((1, N))
 _H_GYRO[0, Ekf.R] = _H_GYRO[0, Ekf.BIAS] = 1.0
 _EYE = np.eye(N)
+#: the state rows each scalar measurement sums (its ``H``'s ones)
+_ROWS_SPEED, _ROWS_YAW_RATE, _ROWS_GYRO = (_V,), (_R,), (_R, _BIAS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,6 +171,9 @@ def predict(b: Belief, t_s: float, noise: EkfNoise) -> Belief:
 
 
 def _update(b: Belief, H: np.ndarray, nu: np.ndarray, R: np.ndarray) -> Belief:
+    """The Kalman correction of `b` by a measurement of model `H` (m, 7), innovation `nu`
+    (m,) and covariance `R` (m, m), in Joseph form. The reference the fast paths below
+    (``_update_rows``, ``update_pose``) reproduce bit for bit (tests)."""
     S = H @ b.P @ H.T + R
     K = np.linalg.solve(S, H @ b.P).T  # P H^T S^-1 (S and P symmetric)
     s = b.s + K @ nu
@@ -178,36 +183,72 @@ def _update(b: Belief, H: np.ndarray, nu: np.ndarray, R: np.ndarray) -> Belief:
     return Belief(b.t_s, s, 0.5 * (P + P.T))
 
 
+def _update_rows(b: Belief, rows: tuple[int, ...], h: np.ndarray, nu: float, var: float
+                 ) -> Belief:
+    """``_update`` for a scalar measurement ``z = sum(s[rows])`` (`h` (7,): ones at `rows`),
+    innovation `nu` and variance `var`, on the filter's hot path (every odometry and gyro
+    sample, and again on each replay).
+
+    The same arithmetic, bit for bit: ``H P`` is the sum of `rows` of ``P`` (the other
+    products are exact zeros), ``S`` a float, ``np.linalg.solve`` of a 1x1 system multiplies
+    by ``1 / S`` (what LAPACK does) and the outer products with one inner term are single
+    products; only the small-matrix calls around them are gone (33 -> 20 us a call).
+    """
+    P = b.P
+    hp = P[rows[0]] + P[rows[1]] if len(rows) == 2 else P[rows[0]].copy()  # H P (7,)
+    S = (hp[rows[0]] + hp[rows[1]] if len(rows) == 2 else hp[rows[0]]) + var
+    k = hp * (1.0 / S)  # K (7,)
+    s = b.s + k * nu
+    s[_YAW] = wrap_angle(s[_YAW])
+    A = _EYE - np.outer(k, h)
+    P = A @ P @ A.T + np.outer(k * var, k)
+    return Belief(b.t_s, s, 0.5 * (P + P.T))
+
+
+def _pose_nu(b: Belief, z: np.ndarray) -> np.ndarray:
+    """The innovation (3,) of a pose `z` = [x, y, yaw]."""
+    return np.array([z[0] - b.s[_X], z[1] - b.s[_Y], wrap_angle(z[2] - b.s[_YAW])])
+
+
 def pose_innovation(b: Belief, z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, float]:
     """Innovation (3,) of a pose `z` = [x, y, yaw] with covariance `R` (3, 3), and its
     squared Mahalanobis distance ``nu^T (H P H^T + R)^-1 nu``."""
-    nu = np.array([z[0] - b.s[Ekf.X], z[1] - b.s[Ekf.Y], wrap_angle(z[2] - b.s[Ekf.YAW])])
+    nu = _pose_nu(b, z)
     S = b.P[_POSE_BLOCK] + R
     return nu, float(nu @ np.linalg.solve(S, nu))
 
 
 def update_pose(b: Belief, z: np.ndarray, R: np.ndarray) -> Belief:
-    """Correct `b` with a pose `z` = [x m, y m, yaw rad] of covariance `R` (3, 3)."""
-    nu, _ = pose_innovation(b, z, R)
-    return _update(b, _H_POSE, nu, R)
+    """Correct `b` with a pose `z` = [x m, y m, yaw rad] of covariance `R` (3, 3).
+
+    ``_update`` with ``H = _H_POSE`` bit for bit: ``H P`` is the first three rows of ``P``
+    and ``K H`` is ``K`` in the first three columns (one exact product each)."""
+    nu = _pose_nu(b, z)
+    P = b.P
+    K = np.linalg.solve(P[_POSE_BLOCK] + R, P[: _YAW + 1]).T  # (7, 3)
+    s = b.s + K @ nu
+    s[_YAW] = wrap_angle(s[_YAW])
+    A = _EYE.copy()
+    A[:, : _YAW + 1] -= K
+    P = A @ P @ A.T + K @ R @ K.T
+    return Belief(b.t_s, s, 0.5 * (P + P.T))
 
 
 def update_speed(b: Belief, speed_mps: float, std_mps: float) -> Belief:
     """Correct `b` with a wheel speed [m/s] of std `std_mps`."""
-    nu = np.array([speed_mps - b.s[Ekf.V]])
-    return _update(b, _H_SPEED, nu, np.array([[std_mps**2]]))
+    return _update_rows(b, _ROWS_SPEED, _H_SPEED[0], speed_mps - float(b.s[_V]), std_mps**2)
 
 
 def update_yaw_rate(b: Belief, yaw_rate_radps: float, std_radps: float) -> Belief:
     """Correct `b` with an unbiased yaw rate (wheel odometry) [rad/s]."""
-    nu = np.array([yaw_rate_radps - b.s[Ekf.R]])
-    return _update(b, _H_YAW_RATE, nu, np.array([[std_radps**2]]))
+    return _update_rows(b, _ROWS_YAW_RATE, _H_YAW_RATE[0], yaw_rate_radps - float(b.s[_R]),
+                        std_radps**2)
 
 
 def update_gyro(b: Belief, yaw_rate_radps: float, std_radps: float) -> Belief:
     """Correct `b` with a gyro yaw rate ``z = r + b`` [rad/s]."""
-    nu = np.array([yaw_rate_radps - b.s[Ekf.R] - b.s[Ekf.BIAS]])
-    return _update(b, _H_GYRO, nu, np.array([[std_radps**2]]))
+    nu = yaw_rate_radps - float(b.s[_R]) - float(b.s[_BIAS])
+    return _update_rows(b, _ROWS_GYRO, _H_GYRO[0], nu, std_radps**2)
 
 
 def pose_covariance(cov: np.ndarray | None, noise: EkfNoise) -> np.ndarray:

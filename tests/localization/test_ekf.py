@@ -285,3 +285,32 @@ def test_the_prediction_is_the_module_docstrings_model_bit_for_bit() -> None:
         got = predict(b, dt, noise)
         want_s = [x + dx, y + dy, wrap_angle(yaw + r * dt), v, r, bias, vy]
         assert np.array_equal(got.s, want_s) and np.array_equal(got.P, 0.5 * (P + P.T))
+
+
+def test_the_updates_are_the_joseph_form_reference_bit_for_bit() -> None:
+    """The fast corrections (speed, wheel yaw rate, gyro, pose) against ``_update``, the
+    Joseph form with the full ``H``: the same numbers, bit for bit, on random beliefs."""
+    from services.localization_bridge import ekf
+
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        m = rng.normal(size=(7, 7)) * rng.uniform(1e-3, 3.0)
+        b = ekf.Belief(0.0, rng.normal(size=7) * [10, 10, 3, 4, 2, 0.1, 0.5], m @ m.T)
+        z, std = float(rng.normal() * 3), float(rng.uniform(1e-3, 1.0))
+        R1 = np.array([[std**2]])
+        cases = [
+            (ekf.update_speed(b, z, std), ekf._H_SPEED, z - b.s[ekf.Ekf.V]),
+            (ekf.update_yaw_rate(b, z, std), ekf._H_YAW_RATE, z - b.s[ekf.Ekf.R]),
+            (ekf.update_gyro(b, z, std), ekf._H_GYRO,
+             z - b.s[ekf.Ekf.R] - b.s[ekf.Ekf.BIAS]),
+        ]
+        for got, H, nu in cases:
+            want = ekf._update(b, H, np.array([nu]), R1)
+            assert np.array_equal(got.s, want.s) and np.array_equal(got.P, want.P)
+        pose = b.s[:3] + rng.normal(size=3) * 0.1
+        a = rng.normal(size=(3, 3)) * 0.05
+        R3 = a @ a.T + np.eye(3) * 1e-4
+        got = ekf.update_pose(b, pose, R3)
+        nu, _ = ekf.pose_innovation(b, pose, R3)
+        want = ekf._update(b, ekf._H_POSE, nu, R3)
+        assert np.array_equal(got.s, want.s) and np.array_equal(got.P, want.P)
