@@ -16,6 +16,13 @@ limit, the bench's 2 ms compute delay), where the solver meets what it meets in 
 figures of all ticks together, each run's median and p99 too.
 
 ``--method cimpcc-line`` solves its minimum-time line first (once per track, then cached).
+
+``--pause-ms P`` waits P ms before each tick, as the service does between its states (20 Hz:
+about 48 ms), sleeping or (``--pause-spin``) busy-waiting: the solve after a pause is slower
+than back to back (the caches went cold meanwhile; README, "what the quiet latency is made
+of"). The pause is not in the solve time.
+
+    .venv/bin/python -m benchmarks.solve_time --track builtin:paperlike --steps 600 --pause-ms 50
 """
 
 from __future__ import annotations
@@ -43,8 +50,11 @@ def run(
     beta_mode: str,
     cfg: RacestackConfig | None = None,
     plant_kind: str = "model",
+    pause_s: float = 0.0,
+    pause_spin: bool = False,
 ) -> dict:
-    """Run the closed loop; return the figures (times in ms)."""
+    """Run the closed loop; return the figures (times in ms); `pause_s` [s] before each tick
+    (slept, or busy-waited with `pause_spin`)."""
     track = load_track(track_spec)
     cfg = cfg or RacestackConfig()
     settings = cfg.planner.model_copy(
@@ -64,6 +74,13 @@ def run(
     step = planner.step
 
     def counted(*args, **kwargs):  # type: ignore[no-untyped-def]
+        if pause_s > 0.0:
+            if pause_spin:
+                end = time.perf_counter() + pause_s
+                while time.perf_counter() < end:
+                    pass
+            else:
+                time.sleep(pause_s)
         result = step(*args, **kwargs)
         iterations.append(result.iterations)
         return result
@@ -119,6 +136,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", default=None, help="configuration file or overlay (TOML)")
     ap.add_argument("--plant", choices=["model", "sim"], default="model")
     ap.add_argument("--repeat", type=int, default=1, help="run the loop this many times")
+    ap.add_argument("--pause-ms", type=float, default=0.0,
+                    help="wait this long before each tick [ms] (default 0: back to back)")
+    ap.add_argument("--pause-spin", action="store_true",
+                    help="busy-wait the pause instead of sleeping")
     args = ap.parse_args(argv)
     runs = []
     try:
@@ -126,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(max(args.repeat, 1)):
             runs.append(run(
                 args.track, args.steps, args.method, not args.no_compile, args.backend,
-                args.beta_mode, cfg, args.plant,
+                args.beta_mode, cfg, args.plant, args.pause_ms / 1e3, args.pause_spin,
             ))
     except (TrackError, ConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -146,7 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(
         f"{r['steps']} closed-loop steps, {r['laps']:.1f} laps, success {100 * r['success']:.1f} %,"
-        f" max |e_con| {r['max_abs_e_con_m']:.3f} m  (plant {args.plant})"
+        f" max |e_con| {r['max_abs_e_con_m']:.3f} m  (plant {args.plant}"
+        + (f", {args.pause_ms:g} ms {'busy-waited' if args.pause_spin else 'slept'} before "
+           "each tick)" if args.pause_ms > 0 else ")")
     )
     print(
         f"iterations: median {r['iter_median']:.0f}  p99 {r['iter_p99']:.0f}  "
