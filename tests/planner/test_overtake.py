@@ -114,6 +114,25 @@ def test_a_slow_car_ahead_is_passed_where_there_is_room_else_followed(
         assert near.mode == "follow" and near.speed_cap_mps < 2.0
 
 
+def test_a_pass_is_planned_at_the_speeds_the_car_is_held_to() -> None:
+    """A car at 0.8 of the line's speeds 1.5 m ahead on a long straight: at the line's
+    speeds the ego passes; held to 0.75 of them (a cautious out lap, a grip adaptation) it
+    is slower than that car and stays behind it. Planned at the line's speeds, such a pass
+    ended squeezed beside the car (Oschersleben seeds 610-637 in the out lap)."""
+    ref = straight_line_lap(half_width_m=1.0)
+    line = ref.line
+    s_o = 11.5
+    x, y = (float(v) for v in line.point_at(s_o))
+    h = float(line.heading_at(s_o))
+    o = OpponentEstimate(1, x, y, 3.2 * math.cos(h), 3.2 * math.sin(h), h)
+    p = OvertakeParams()
+    pred = predict_on_line(line, o, p.times(), s_o, ref)  # 0.8 of the line's 4 m/s
+    full = plan_around(ref, 10.0, 0.0, [pred], 0.0, p, v_e_mps=4.0)
+    held = plan_around(ref, 10.0, 0.0, [pred], 0.0, p, v_e_mps=3.0, speed_scale=0.75)
+    assert full.mode == "pass" and abs(full.offset_m) > 0.3
+    assert held.mode in ("line", "follow") and abs(held.offset_m) < 0.05
+
+
 def test_nobody_near_leaves_the_line_free() -> None:
     ref = straight_line_lap()
     line = ref.line

@@ -9,8 +9,10 @@ speed profile and its offset (``services.planner.opponents.predict_on_line``) at
 
 The plan of one tick is a lateral target ``d`` (right +) and a speed cap:
 
-1. Ego progress: along the line's clock, but no further than from its speed now gaining
-   ``ego_accel_mps2``: ``s_k = min(s_plan(t_plan(s_e) + t_k), s_e + v_e t_k + a t_k^2 / 2)``.
+1. Ego progress: along the line's clock at the share ``c`` of its speeds the car is held
+   to (the speed scale: a cautious out lap, a grip adaptation), but no further than from
+   its speed now gaining ``ego_accel_mps2``: ``s_k = min(s_plan(t_plan(s_e) + c t_k), s_e
+   + v_e t_k + a t_k^2 / 2)``.
 2. Opponent j is *near* at stage k when ``-(L + m_lon) < s_jk - s_k < L + m_lon + T_gap
    v_p(s_k)`` and *beside* when ``|s_jk - s_k| < L + m_lon`` (L, W the means of the two
    cars' lengths and widths). Nobody near: the line, no cap.
@@ -164,13 +166,16 @@ def ego_progress(
     times_s: np.ndarray,
     v0_mps: float | None = None,
     accel_mps2: float = 3.0,
+    speed_scale: float = 1.0,
 ) -> np.ndarray:
     """(K,) ego arc length [m] at `times_s` from `s0_m`: along the line's clock (its speed
-    profile), or no further than from the speed `v0_mps` gaining `accel_mps2` (a car held
-    behind another does not jump back to the line's speed)."""
+    profile; at `speed_scale` of its speeds the clock runs that much slower), or no
+    further than from the speed `v0_mps` gaining `accel_mps2` (a car held behind another
+    does not jump back to the line's speed)."""
     t = np.asarray(times_s, dtype=float)
     t0 = float(ref.at("t", s0_m))
-    on_plan = s0_m + np.asarray(ref.s_at_time(t0 + t), dtype=float) - float(ref.s_at_time(t0))
+    on_plan = (s0_m + np.asarray(ref.s_at_time(t0 + speed_scale * t), dtype=float)
+               - float(ref.s_at_time(t0)))
     if v0_mps is None:
         return on_plan
     return np.minimum(on_plan, s0_m + v0_mps * t + 0.5 * accel_mps2 * t**2)
@@ -240,6 +245,7 @@ def plan_around(
     previous_offset_m: float,
     params: OvertakeParams,
     v_e_mps: float | None = None,
+    speed_scale: float = 1.0,
 ) -> OvertakePlan:
     """The plan of one tick (module docstring).
 
@@ -249,6 +255,10 @@ def plan_around(
         opponents: predictions on the same line at ``params.times()``.
         previous_offset_m: the last tick's target [m] (its sign: the side of a pass).
         v_e_mps: the ego's speed now [m/s] (None: on the profile; ``ego_progress``).
+        speed_scale: the share of the profile's speeds the ego is held to (0, 1]: a pass
+            is planned with the speeds the car will drive (a cautious out lap at 0.8
+            planned passes at the line's speeds and ended squeezed beside the car it
+            could not pass, Oschersleben seeds 610-637).
     """
     if not opponents:
         return FREE
@@ -256,8 +266,8 @@ def plan_around(
     line = ref.line
     L_line = line.length_m
     t = p.times()
-    s_e = ego_progress(ref, s_e_m, t, v_e_mps, p.ego_accel_mps2)  # (K,)
-    v_e = np.asarray(ref.at("v", s_e), dtype=float)
+    s_e = ego_progress(ref, s_e_m, t, v_e_mps, p.ego_accel_mps2, speed_scale)  # (K,)
+    v_e = speed_scale * np.asarray(ref.at("v", s_e), dtype=float)
     ds = np.stack([o.s_m for o in opponents]) - s_e[None, :]  # (J, K) ahead of the ego
     ds = (ds + 0.5 * L_line) % L_line - 0.5 * L_line
     e_o = np.stack([o.e_m for o in opponents])

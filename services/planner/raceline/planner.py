@@ -538,7 +538,7 @@ class RacelinePlanner:
         preds = [predict_on_line(line, o, t, s_e, ref) for o in self.opponents]
         return plan_around(
             self.raceline.reference, s_e, e_e, preds, self._offset, self.overtake,
-            v_e_mps=self._speed_cmd,
+            v_e_mps=self._speed_cmd, speed_scale=self.speed_scale,
         )
 
     @cached_property
