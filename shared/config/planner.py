@@ -301,7 +301,9 @@ class RacelineSettings(Section):
         "start_rise_per_tick back to 1 unless the adaptation cut it; only on a line the car "
         "can drive slower (its tightest curvature within the steering lock's turn; a "
         "linear-tyre line drifts tighter). The identified car on the gym car's line spun in "
-        "its first bends before the adaptation acted (README, issue #21); 1: off",
+        "its first bends before the adaptation acted (README, issue #21); a car racing "
+        "below its line (an opponent at a speed scale) is held at this share of the line's "
+        "own speeds, so not at all at or below it; 1: off",
     )
     start_hold_share: float = Field(
         0.5, ge=0.0, le=1.0,

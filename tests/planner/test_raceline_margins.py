@@ -73,9 +73,11 @@ def test_each_pose_source_adds_its_own_margin() -> None:
                for p in POSE_MARGINS if not getattr(plain.raceline, f"{p}_margin_m", 0.0))
 
 
-def _circle_planner(radius: float = 3.0, width: float = 0.6, **raceline):
-    """A raceline planner on a circle (its line 0.2 m outside the centreline); the cautious
-    out lap off unless asked (these tests judge the grip adaptation from the plan's speed)."""
+def _circle_planner(radius: float = 3.0, width: float = 0.6, line_share: float = 1.0,
+                    **raceline):
+    """A raceline planner on a circle (its line 0.2 m outside the centreline), driving
+    `line_share` of its line's speeds; the cautious out lap off unless asked (these tests
+    judge the grip adaptation from the plan's speed)."""
     from services.planner.raceline.planner import RacelinePlanner
     from tests.planner.test_raceline import circle, circle_lap
 
@@ -83,7 +85,7 @@ def _circle_planner(radius: float = 3.0, width: float = 0.6, **raceline):
     tr = circle(radius, n=300, width=width)
     settings = PlannerSettings(method="raceline", raceline=RacelineSettings(**raceline))
     return RacelinePlanner(tr, settings, min_time_loader=lambda t, v, s: circle_lap(
-        t, radius, 3.5, 0.15))
+        t, radius, 3.5, 0.15), speed_scale=line_share)
 
 
 def _rear_axle_at(planner, s: float, offset_m: float = 0.0) -> tuple[float, float, float]:
@@ -247,3 +249,14 @@ def test_a_line_tighter_than_the_lock_starts_at_its_own_speeds() -> None:
     assert not tight.drivable_slower and tight.speed_scale == 1.0
     wide = _circle_planner(start_speed_scale=0.8)
     assert wide.drivable_slower and wide.speed_scale == 0.8
+
+
+def test_a_car_slower_than_its_line_is_held_only_to_the_lines_share() -> None:
+    """The cautious out lap caps the LINE's speeds: a car at 0.85 of its line (an opponent
+    at a speed scale) starts at 0.8 / 0.85 of its own profile, one at or below 0.8 not held
+    at all (held at 0.8 of its own, 0.68 of the line, the opponent at 0.85 left map416
+    twice in every start of ``benchmarks.overtake``)."""
+    slower = _circle_planner(start_speed_scale=0.8, line_share=0.85)
+    assert slower.speed_scale == pytest.approx(0.8 / 0.85) and slower._start_phase == "hold"
+    slowest = _circle_planner(start_speed_scale=0.8, line_share=0.75)
+    assert slowest.speed_scale == 1.0 and slowest._start_phase is None

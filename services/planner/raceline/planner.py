@@ -467,6 +467,8 @@ class RacelinePlanner:
             min_time_loader,
         )
         self.raceline = scaled_raceline(self.raceline, speed_scale, self.vehicle)
+        #: the share of the line's own speeds this planner's profile drives (a slower car)
+        self.line_share = float(speed_scale)
         self.overtake = overtake or OvertakeParams()
         self.opponents: list[OpponentEstimate] = []
         self.plan: OvertakePlan = FREE  #: the last tick's plan around the opponents
@@ -502,8 +504,12 @@ class RacelinePlanner:
         #: the grip adaptation's speed scale (``step``): 1 until the car strays off the line
         #: (the cautious out lap's start scale on a line the car can drive slower)
         o = self.options
-        cautious = o.start_speed_scale < 1.0 and self.drivable_slower
-        self.speed_scale = o.start_speed_scale if cautious else 1.0
+        # the out lap's cap is a share of the LINE's speeds: a profile already below them
+        # (a slower car, ``line_share``) is held only what it lacks of that (a profile at
+        # 0.85 held at 0.8 of its own, 0.68 of the line, left map416 twice in every start)
+        start = o.start_speed_scale / self.line_share
+        cautious = start < 1.0 and self.drivable_slower
+        self.speed_scale = start if cautious else 1.0
         #: the cautious out lap (``_cautious_start``): "hold", "rise" or None (over)
         self._start_phase: str | None = "hold" if cautious else None
         self._start_travel_m = 0.0  #: the line's length driven since the start [m]
