@@ -12,6 +12,11 @@ or more entries ONE simulator process integrates every car (each with its own ke
     method = "cimpcc"              # default: [planner] method
     speed_scale = 0.85             # its speed commands are scaled by this in the simulator
     start_gap_m = 1.5              # this far behind the car ahead of it in the list
+
+    [[cars]]
+    name = "car2"
+    method = "raceline"
+    pace = 0.85                    # its planner races 85 % of its line's speeds
 """
 
 from __future__ import annotations
@@ -30,7 +35,12 @@ class CarEntry(Section):
         method: its planner's method (a method of the registry); None: ``[planner] method``.
         speed_scale: the simulator multiplies this car's speed commands by it (a slower car
             with the same planner: 0.85 is an opponent at 85 % of what its planner asks);
-            1 = as commanded.
+            1 = as commanded. Its planner steers for speeds the car never reaches: a
+            tracker method cuts its bends that way; use ``pace`` for it.
+        pace: its planner races this share of its line's speeds (``[planner.raceline]
+            speed_share``: the slower plan keeps the line's path and dynamic steering, a
+            clean slower car); only for a method that races a planned line (``raceline``);
+            1 = the line's own.
         start_gap_m: it starts this far behind the car before it in the list, along the
             centreline [m] (the first car: behind the single car's start; default 0).
         start_s_m: instead of the gap, its start as arc length from the line [m] (None: by
@@ -40,6 +50,7 @@ class CarEntry(Section):
     name: str
     method: str | None = None
     speed_scale: float = Field(1.0, gt=0.0, le=2.0, allow_inf_nan=False)
+    pace: float = Field(1.0, gt=0.1, le=1.0, allow_inf_nan=False)
     start_gap_m: float = Field(0.0, ge=0.0, le=1e3, allow_inf_nan=False)
     start_s_m: float | None = Field(None, ge=-1e4, le=1e4, allow_inf_nan=False)
 
@@ -58,11 +69,21 @@ class CarEntry(Section):
         return v
 
 
-def check_cars(cars: tuple[CarEntry, ...]) -> tuple[CarEntry, ...]:
-    """`cars` if their names are distinct (ValueError otherwise)."""
+def check_cars(cars: tuple[CarEntry, ...], default_method: str | None = None
+               ) -> tuple[CarEntry, ...]:
+    """`cars` if their names are distinct and each ``pace`` below 1 is a method's that races
+    a planned line (ValueError otherwise); `default_method`: ``[planner] method``."""
+    from shared.config.methods import METHODS
+
     names = [c.name for c in cars]
     if len(set(names)) != len(names):
         raise ValueError(f"[[cars]] names repeat: {names}")
+    for c in cars:
+        method = c.method or default_method
+        if c.pace != 1.0 and method is not None and METHODS[method].kind != "tracker":
+            raise ValueError(f"[[cars]] {c.name}: pace {c.pace:g} needs a method that races a "
+                             f"planned line (raceline), not {method}; speed_scale slows any "
+                             "method in the simulator")
     return cars
 
 

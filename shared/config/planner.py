@@ -294,6 +294,12 @@ class RacelineSettings(Section):
         description="grip adaptation: the lowest speed scale (0.7 of the plan's speeds, "
         "0.49 of its lateral acceleration) [1]",
     )
+    speed_share: float = Field(
+        1.0, gt=0.1, le=1.0,
+        description="race the line at this share of its speeds: a slower car that keeps "
+        "the line's path and its dynamic steering (ReferenceLap.slower), e.g. an opponent at "
+        "85 % ([[cars]] pace sets it per car); 1: the line's own speeds",
+    )
     start_speed_scale: float = Field(
         0.8, gt=0.1, le=1.0,
         description="cautious out lap: a run starts at this share of the line's speeds (the "
@@ -301,9 +307,8 @@ class RacelineSettings(Section):
         "start_rise_per_tick back to 1 unless the adaptation cut it; only on a line the car "
         "can drive slower (its tightest curvature within the steering lock's turn; a "
         "linear-tyre line drifts tighter). The identified car on the gym car's line spun in "
-        "its first bends before the adaptation acted (README, issue #21); a car racing "
-        "below its line (an opponent at a speed scale) is held at this share of the line's "
-        "own speeds, so not at all at or below it; 1: off",
+        "its first bends before the adaptation acted (README, issue #21); not for a car "
+        "racing below its line (speed_share < 1: a slower car keeps its pace); 1: off",
     )
     start_hold_share: float = Field(
         0.5, ge=0.0, le=1.0,

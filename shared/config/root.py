@@ -98,14 +98,14 @@ class RacestackConfig(Section):
     processes: ProcessSettings = ProcessSettings()
     cars: tuple[CarEntry, ...] = Field(
         (),
-        description="Several cars on one track ([[cars]]: name, method, speed_scale, "
+        description="Several cars on one track ([[cars]]: name, method, speed_scale, pace, "
         "start_gap_m, start_s_m; shared/config/cars.py): one simulator integrates them all, "
         "racestack up starts a bridge and a planner per car; empty: the one car of [bus] car",
     )
 
     @model_validator(mode="after")
     def _cars_distinct(self) -> RacestackConfig:
-        check_cars(self.cars)
+        check_cars(self.cars, self.planner.method)
         return self
 
     def car(self, name: str) -> CarEntry | None:

@@ -251,12 +251,45 @@ def test_a_line_tighter_than_the_lock_starts_at_its_own_speeds() -> None:
     assert wide.drivable_slower and wide.speed_scale == 0.8
 
 
-def test_a_car_slower_than_its_line_is_held_only_to_the_lines_share() -> None:
-    """The cautious out lap caps the LINE's speeds: a car at 0.85 of its line (an opponent
-    at a speed scale) starts at 0.8 / 0.85 of its own profile, one at or below 0.8 not held
-    at all (held at 0.8 of its own, 0.68 of the line, the opponent at 0.85 left map416
-    twice in every start of ``benchmarks.overtake``)."""
+def test_a_car_slower_than_its_line_keeps_its_pace_from_the_start() -> None:
+    """No cautious out lap for a car racing below its line (an opponent at a speed scale):
+    held at 0.8 of its own 0.85 (0.68 of the line) it left map416 twice in every start of
+    ``benchmarks.overtake``; held at 0.8 of the line, the car behind followed it for half
+    a lap at the same speed and with the lidar's view swerved onto the wall."""
     slower = _circle_planner(start_speed_scale=0.8, line_share=0.85)
-    assert slower.speed_scale == pytest.approx(0.8 / 0.85) and slower._start_phase == "hold"
-    slowest = _circle_planner(start_speed_scale=0.8, line_share=0.75)
-    assert slowest.speed_scale == 1.0 and slowest._start_phase is None
+    assert slower.speed_scale == 1.0 and slower._start_phase is None
+    full = _circle_planner(start_speed_scale=0.8)
+    assert full.speed_scale == 0.8 and full._start_phase == "hold"
+
+
+def test_speed_share_races_the_line_slower_with_its_dynamics() -> None:
+    """``[planner.raceline] speed_share`` (``[[cars]] pace``): the planner built from the
+    settings alone drives that share of its line (``scaled_raceline``), as one given the
+    speed scale, from its start."""
+    from services.planner.raceline.planner import RacelinePlanner
+    from tests.planner.test_raceline import circle, circle_lap
+
+    tr = circle(3.0, n=300, width=0.6)
+    settings = PlannerSettings(method="raceline", raceline=RacelineSettings(speed_share=0.85))
+    share = RacelinePlanner(tr, settings, min_time_loader=lambda t, v, s: circle_lap(
+        t, 3.0, 3.5, 0.15))
+    full = _circle_planner(start_speed_scale=0.8)
+    assert share.line_share == 0.85
+    assert share.raceline.speed_mps == pytest.approx(0.85 * full.raceline.speed_mps)
+    assert share.speed_scale == 1.0  # below its line: no cautious out lap
+
+
+def test_with_nobody_near_the_offset_returns_inside_the_track_at_the_lateral_rate() -> None:
+    """An offset where the track ahead has no room for it (the line near that wall) goes
+    back towards the line at the overtaking lateral rate, not in one tick: snapped back, a
+    follower 0.11 m beside its line swerved over it onto the other wall (Oschersleben seed
+    623 with the lidar's view)."""
+    planner = _circle_planner()
+    planner.step(*_rear_axle_at(planner, 0.0))
+    planner._join = None  # on the line: no join
+    _lo, hi = planner._offset_room(planner._s_line)
+    assert hi < 0.4  # no room for 0.4 m right of the line (its outside wall)
+    planner._offset = 0.4
+    planner.step(*_rear_axle_at(planner, 0.3))
+    step = planner.overtake.lateral_rate_mps * planner.settings.dt_s
+    assert planner._offset == pytest.approx(0.4 - step)

@@ -447,12 +447,13 @@ class RacelinePlanner:
         raceline: Raceline | None = None,
         min_time_loader: MinTimeLoader | None = None,
         timer: Callable[[], float] = time.perf_counter,
-        speed_scale: float = 1.0,
+        speed_scale: float | None = None,
         overtake: OvertakeParams | None = None,
     ) -> None:
         """Build the raceline (or reuse one) on `track` for `vehicle` (None: the default
         car, ``F1TENTH_GYM``); `method` is the name its results carry; `speed_scale`
-        drives the line's speed profile scaled (``scaled_raceline``; 1: the line's own);
+        drives the line's speed profile scaled (``scaled_raceline``; 1: the line's own;
+        None: ``[planner.raceline] speed_share``);
         `overtake`: how it plans around opponents (``set_opponents``)."""
         self.method = method
         self.track = track
@@ -466,6 +467,8 @@ class RacelinePlanner:
             track, settings.raceline, self.vehicle, raceline_steering_limits(settings),
             min_time_loader,
         )
+        if speed_scale is None:
+            speed_scale = settings.raceline.speed_share
         self.raceline = scaled_raceline(self.raceline, speed_scale, self.vehicle)
         #: the share of the line's own speeds this planner's profile drives (a slower car)
         self.line_share = float(speed_scale)
@@ -504,12 +507,14 @@ class RacelinePlanner:
         #: the grip adaptation's speed scale (``step``): 1 until the car strays off the line
         #: (the cautious out lap's start scale on a line the car can drive slower)
         o = self.options
-        # the out lap's cap is a share of the LINE's speeds: a profile already below them
-        # (a slower car, ``line_share``) is held only what it lacks of that (a profile at
-        # 0.85 held at 0.8 of its own, 0.68 of the line, left map416 twice in every start)
-        start = o.start_speed_scale / self.line_share
-        cautious = start < 1.0 and self.drivable_slower
-        self.speed_scale = start if cautious else 1.0
+        # a car racing below its line (``line_share``: a slower car) keeps its pace from
+        # the start: held at 0.8 of its own 0.85, 0.68 of the line, whose steering is not
+        # the slower plan's, it left map416 twice in every start; held at 0.8 of the line,
+        # the car behind followed it at its own held speed for half a lap and with the
+        # lidar's view swerved onto the wall 4 times in 50 starts (Oschersleben 600-649)
+        cautious = (o.start_speed_scale < 1.0 and self.line_share == 1.0
+                    and self.drivable_slower)
+        self.speed_scale = o.start_speed_scale if cautious else 1.0
         #: the cautious out lap (``_cautious_start``): "hold", "rise" or None (over)
         self._start_phase: str | None = "hold" if cautious else None
         self._start_travel_m = 0.0  #: the line's length driven since the start [m]
@@ -698,6 +703,7 @@ class RacelinePlanner:
             # ramp the offset towards the plan's:
             # out twice as fast as the plan assumes (the car lags it), back towards the
             # line at its rate (a fast swing back turns the car's corners over the wall)
+            before = self._offset
             out = abs(plan.offset_m) > abs(self._offset)
             rate = self.overtake.lateral_rate_mps * (2.0 if out else 1.0)
             if not out:  # ... and easing in as it nears the line
@@ -710,8 +716,13 @@ class RacelinePlanner:
                 # follow plans its corridor inside it itself)
                 lo, hi = self._offset_room(hint if hint is not None else 0.0)
                 # (never off the line for it: where the line runs nearer a wall than the
-                # room, the bound left the offset jumping round it and never back to 0)
-                self._offset = min(max(self._offset, min(lo, 0.0)), max(hi, 0.0))
+                # room, the bound left the offset jumping round it and never back to 0),
+                # at the lateral rate: snapped there in one tick, a follower 0.11 m beside
+                # the line whose car ahead was lost swerved back over it onto the wall
+                # (Oschersleben seed 623, --source lidar)
+                target = min(max(self._offset, min(lo, 0.0)), max(hi, 0.0))
+                fast = self.overtake.lateral_rate_mps * self.settings.dt_s
+                self._offset = before + min(max(target - before, -fast), fast)
         tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset,
                                   speed_scale=self.speed_scale, offset_slope=slope)
         self._s_line = tc.s_m

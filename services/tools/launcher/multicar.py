@@ -30,6 +30,7 @@ from services.tools.launcher.supervisor import Supervisor, service_argv
 from shared.bus import Bus
 from shared.config import RacestackConfig
 from shared.config.cars import CarEntry
+from shared.config.methods import METHODS
 from shared.config.toml_write import dumps as toml_dumps
 from shared.evaluation import LapRecord, format_table, results_document
 from shared.keys import DEFAULT_CAR, Keys
@@ -92,7 +93,8 @@ def process_name(service: str, car: str, first: str) -> str:
 def car_label(car: CarEntry, method: str) -> str:
     """A car's column in the lap table: ``car1 (cimpcc x0.85)``."""
     scale = "" if car.speed_scale == 1.0 else f" x{car.speed_scale:g}"
-    return f"{car.name} ({method}{scale})"
+    pace = "" if car.pace == 1.0 else f" pace {car.pace:g}"
+    return f"{car.name} ({method}{scale}{pace})"
 
 
 @dataclass
@@ -142,6 +144,10 @@ def write_car_configs(data: dict[str, Any], cfg: RacestackConfig, run_dir: Path
             own["bus"]["per_car_identity"] = True
         own["planner"] = {**data.get("planner", {}),
                           "method": car.method or cfg.planner.method}
+        if car.pace != 1.0:  # its planner races that share of its line's speeds
+            section = METHODS[own["planner"]["method"]].section or ""
+            own["planner"][section] = {**data.get("planner", {}).get(section, {}),
+                                       "speed_share": car.pace}
         path = run_dir / f"config.{car.name}.toml"
         path.write_text(toml_dumps(own, f"racestack up: car {car.name}'s configuration"),
                         encoding="utf-8")
