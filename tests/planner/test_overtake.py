@@ -56,6 +56,13 @@ def straight_line_lap(length_m: float = 200.0, v: float = 4.0, half_width_m: flo
     return ReferenceLap.from_path(line, kappa, np.full(n, v), F1TENTH_GYM)
 
 
+def car_on_line(line: Track, s_m: float, v_mps: float, oid: int = 1) -> OpponentEstimate:
+    """An opponent at arc length `s_m` [m] of `line`, on it, heading along it at `v_mps`."""
+    x, y = (float(v) for v in line.point_at(s_m))
+    h = float(line.heading_at(s_m))
+    return OpponentEstimate(oid, x, y, v_mps * math.cos(h), v_mps * math.sin(h), h)
+
+
 def test_an_opponent_is_predicted_along_the_line_at_its_progress_speed() -> None:
     ref = straight_line_lap()
     line = ref.line
@@ -98,9 +105,7 @@ def test_a_slow_car_ahead_is_passed_where_there_is_room_else_followed(
     ref = straight_line_lap(half_width_m=half_width)
     line = ref.line
     s_o = 16.0
-    x, y = (float(v) for v in line.point_at(s_o))
-    h = float(line.heading_at(s_o))
-    o = OpponentEstimate(1, x, y, 1.0 * math.cos(h), 1.0 * math.sin(h), h)
+    o = car_on_line(line, s_o, 1.0)
     p = OvertakeParams()
     pred = predict_on_line(line, o, p.times(), 10.0)
     plan = plan_around(ref, 10.0, 0.0, [pred], 0.0, p, v_e_mps=4.0)
@@ -122,9 +127,7 @@ def test_a_pass_is_planned_at_the_speeds_the_car_is_held_to() -> None:
     ref = straight_line_lap(half_width_m=1.0)
     line = ref.line
     s_o = 11.5
-    x, y = (float(v) for v in line.point_at(s_o))
-    h = float(line.heading_at(s_o))
-    o = OpponentEstimate(1, x, y, 3.2 * math.cos(h), 3.2 * math.sin(h), h)
+    o = car_on_line(line, s_o, 3.2)
     p = OvertakeParams()
     pred = predict_on_line(line, o, p.times(), s_o, ref)  # 0.8 of the line's 4 m/s
     full = plan_around(ref, 10.0, 0.0, [pred], 0.0, p, v_e_mps=4.0)
