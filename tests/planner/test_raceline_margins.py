@@ -293,3 +293,27 @@ def test_with_nobody_near_the_offset_returns_inside_the_track_at_the_lateral_rat
     planner.step(*_rear_axle_at(planner, 0.3))
     step = planner.overtake.lateral_rate_mps * planner.settings.dt_s
     assert planner._offset == pytest.approx(0.4 - step)
+
+
+def test_a_pass_starts_only_once_planned_three_ticks_in_a_row() -> None:
+    """An estimate that opens a pass for a tick or two (the lidar's view of a car ahead)
+    does not move the car off its line: the pass starts on its third tick in a row
+    (map416 seed 718 with the lidar: pass / follow / pass, 7 cm to the side, the car back
+    on its line just at an apex it then clipped)."""
+    from services.planner.raceline.overtake import FREE, OvertakePlan
+    from services.planner.raceline.planner import PASS_CONFIRM_TICKS
+
+    assert PASS_CONFIRM_TICKS == 3
+    planner = _circle_planner()
+    for k in range(5):
+        planner.step(*_rear_axle_at(planner, 0.3 * k))
+    passing = OvertakePlan(-0.4, math.inf, 1.0, "pass", (1,))
+    plans = iter([passing, FREE, passing, passing, passing, passing])
+    planner._plan_around = lambda cx, cy, hint: next(plans)
+    offsets = []
+    for k in range(5, 11):
+        planner.step(*_rear_axle_at(planner, 0.3 * k))
+        offsets.append(planner._offset)
+    assert offsets[:4] == [0.0] * 4  # a pass for 1 tick, then 2 in a row: not started
+    assert offsets[4] < 0.0  # the third in a row: started
+    assert offsets[5] < offsets[4] and planner.plan.mode == "pass"

@@ -125,6 +125,10 @@ JOIN_GRIP_SHARE = 0.8
 JOIN_LOOK_M = 1.5
 #: ... and bends at most as tight as this share of the steering limit turns the car.
 JOIN_STEER_SHARE = 0.8
+#: A pass starts only once planned this many ticks in a row (the tick before it: the last
+#: plan that was not a pass is kept): an estimate that opens a pass for a tick or two
+#: does not swerve the car.
+PASS_CONFIRM_TICKS = 3
 #: Loads (or solves) the minimum-time lap: ``(track, vehicle, settings) -> MinTimeLap``.
 MinTimeLoader = Callable[[Track, DynamicVehicleParams, MinTimeSettings], MinTimeLap]
 
@@ -529,6 +533,7 @@ class RacelinePlanner:
         self._last_xy: tuple[float, float] | None = None  #: the last pose's position [m]
         self._offset = 0.0  #: the lateral offset the tracker drives, ramped [m]
         self.plan = FREE
+        self._pass_ticks = 0  #: ticks in a row a pass was planned but not yet started
         #: the join onto the line in progress (``raceline.join``), and whether the next
         #: step starts one (the start, a move, a hand-back from the recovery rule)
         self._join: LineJoin | None = None
@@ -686,7 +691,14 @@ class RacelinePlanner:
         if self._join_pending:  # from where the car is onto the line, smoothly
             self._join_pending = False
             self._join = self._start_join(cx, cy, hint)
-        plan = self.plan = self._plan_around(cx, cy, hint)
+        plan = self._plan_around(cx, cy, hint)
+        if plan.mode == "pass" and self.plan.mode != "pass":
+            self._pass_ticks += 1
+            if self._pass_ticks < PASS_CONFIRM_TICKS:
+                plan = self.plan if self.plan.mode == "follow" else FREE
+        else:
+            self._pass_ticks = 0
+        self.plan = plan
         slope = join_steer = 0.0
         join_cap = math.inf
         if self._join is not None:
