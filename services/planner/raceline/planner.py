@@ -695,7 +695,7 @@ class RacelinePlanner:
         if plan.mode == "pass" and self.plan.mode != "pass":
             self._pass_ticks += 1
             if self._pass_ticks < PASS_CONFIRM_TICKS:
-                plan = self.plan if self.plan.mode == "follow" else FREE
+                plan = self.plan  # the last plan that was not a pass, its cap with it
         else:
             self._pass_ticks = 0
         self.plan = plan
