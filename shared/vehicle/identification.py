@@ -30,10 +30,20 @@ yaw rate are integrated (midpoint rule) over windows of ``WINDOW_S`` where the c
 faster than ``MIN_SPEED_MPS``, started from the measured yaw rate and the linear model's
 steady-state slip angle (``fit_tyres(fit_beta0=True)`` fits each window's start instead:
 experimental, it diverged on spin-heavy runs); the first ``BURN_IN_S`` of each window are
-not scored. Two passes: the
-second takes the tyres' drag of the first out of the acceleration demand and drops the
+not scored. The IMU's accelerations are taken as what the simulator's are, the mean over
+the grid step that ends at their stamp: ``a_x[k + 1]`` is the input of the step ``k -> k +
+1`` and ``a_y[k + 1]`` is compared with the model's at that step's midpoint (not at
+``t_k``: half a step apart). The model's input is the acceleration DEMAND ``a`` (the
+speed loop's, split over the axles by load), while the IMU measures ``F_X / m``, the
+demand plus the tyres' drag (the front's lateral force along the body when it steers,
+the friction ellipse), which depends on the tyres being fitted: each evaluation solves
+``F_X(a) / m = a_x`` for ``a`` (``DEMAND_ITERATIONS`` fixed-point steps from the previous
+evaluation's drag). With noise-free sensors the true tyres are then the fit's optimum
+(yaw rate 0.8 mrad/s rms on the softer benchmark car, 35 mrad/s with ``a_x`` taken as the
+demand). Two passes: the first takes ``a_x`` itself as the demand (a start that does not
+depend on the tyres), the second starts from it with the solved demand and drops the
 windows the first fitted worst (spins and recoveries, ``OUTLIER_RMS``); the speed loop is
-fitted only where that drag is known.
+fitted only where the drag is known.
 Residuals: measured yaw rate and lateral acceleration (``F_Y / m``), each divided by its
 noise level. Levenberg-Marquardt over the log of the
 tyre parameters (``TYRE_PARAMETERS`` per model):
@@ -69,7 +79,7 @@ Uncertainty (``Estimate.sigma``, one standard deviation) has two parts in quadra
   trades off against a delay (the servo's time constant and rate limit, the speed loop's
   gains and acceleration limit) gets ``|d x / d delay|`` (its optimum at the neighbouring
   delays) times that floor. The tyres: each signal (yaw rate, lateral acceleration,
-  steering angle, speed, acceleration demand) shifted by one grid step, the fit's linear
+  steering angle, speed, longitudinal acceleration) shifted by one grid step, the fit's linear
   response ``-(J^T J)^-1 J^T dr`` scaled to the signal's ``T / sqrt 12``, the signals'
   responses independent (one simulation each for the inputs).
 
@@ -106,7 +116,7 @@ import numpy as np
 from shared.config.vehicle import GRAVITY_MPS2, DynamicVehicleParams
 from shared.vehicle.ops import Ops
 from shared.vehicle.single_track import make_dynamic_derivatives
-from shared.vehicle.tyres import pacejka_peak_slip_rad
+from shared.vehicle.tyres import axle_peak_friction, pacejka_peak_slip_rad
 
 #: The signals ``identify`` needs, each ``(t [s], value)``.
 SIGNALS: tuple[str, ...] = (
@@ -138,10 +148,15 @@ BC_CORRELATION_MAX = 0.9
 PRODUCT_ONLY = "only B*C is told"
 #: The note of a friction parameter the run never used up (module docstring).
 FRICTION_UNUSED = "friction never used up"
+#: Fixed-point steps that solve each evaluation's acceleration demand from the measured
+#: a_x (``simulate_lateral``; started from the previous evaluation's drag, half a step old).
+DEMAND_ITERATIONS = 1
 #: Finite-difference step of the windows' initial slip angles [rad].
 BETA0_STEP_RAD = 1e-4
 #: Pass 2 of the tyre fit drops windows whose rms residual exceeds this x the median.
 OUTLIER_RMS = 3.0
+#: Levenberg-Marquardt iterations of pass 2 (it starts from pass 1's optimum).
+PASS2_ITERATIONS = 30
 #: Contiguous blocks of the recording the delete-one-block jackknife leaves out in turn.
 JACKKNIFE_BLOCKS = 10
 #: A delay is identifiable when its 1-sigma is at most this [s] (and its optimum interior).
@@ -773,16 +788,19 @@ def _rear_small_slip(p: DynamicVehicleParams) -> float:
 
 
 class Lateral(NamedTuple):
-    """``simulate_lateral``'s prediction, each (windows, w): yaw rate [rad/s], lateral
-    acceleration [m/s^2], the tyres' drag on the speed ``v' - a`` and on the body's
-    longitudinal acceleration ``F_X / m - a`` [m/s^2], whether an axle is at its friction
-    limit (Pacejka: past 70 % of its peak slip)."""
+    """``simulate_lateral``'s prediction, each (windows, w): at the samples the yaw rate
+    [rad/s] and whether an axle is at its friction limit (Pacejka: past 70 % of its peak
+    slip); over the grid step that ends at each sample (as the IMU's accelerations: the
+    step's midpoint; the first sample at its own instant) the lateral acceleration
+    [m/s^2], the tyres' drag on the speed ``v' - a`` and on the body's longitudinal
+    acceleration ``F_X / m - a`` [m/s^2] and the acceleration demand ``a`` [m/s^2]."""
 
     r: np.ndarray
     ay: np.ndarray
     drag: np.ndarray
     xdrag: np.ndarray
     sat: np.ndarray
+    demand: np.ndarray
 
 
 def beta_start(g: Grid, starts: np.ndarray, p: DynamicVehicleParams) -> np.ndarray:
@@ -792,20 +810,39 @@ def beta_start(g: Grid, starts: np.ndarray, p: DynamicVehicleParams) -> np.ndarr
     return p.lr_m * r / v - v * r / (GRAVITY_MPS2 * _rear_small_slip(p))
 
 
+def _friction_accel(p: DynamicVehicleParams) -> float:
+    """The largest demand [m/s^2] the tyres transmit (``mu_peak g`` of the weaker axle;
+    inf for ``linear``), as the simulator clips it."""
+    if p.tyre_model == "linear":
+        return math.inf
+    return min(axle_peak_friction(p, "front"), axle_peak_friction(p, "rear")) * GRAVITY_MPS2
+
+
 def simulate_lateral(
     g: Grid, starts: np.ndarray, p: DynamicVehicleParams, offset_rad: float,
-    a_in: np.ndarray | None = None, beta0: np.ndarray | None = None,
+    solve_demand: bool = True, beta0: np.ndarray | None = None,
 ) -> Lateral:
-    """The single-track model over the windows starting at `starts` (module docstring);
-    `a_in`: the acceleration demand on the grid (None: the measured ``a_x``); `beta0`:
-    each window's initial slip angle [rad] (None: ``beta_start``)."""
+    """The single-track model over the windows starting at `starts` (module docstring,
+    "Tyres"); `beta0`: each window's initial slip angle [rad] (None: ``beta_start``).
+
+    The IMU's accelerations are means over the step that ends at their stamp, so the
+    grid sample ``k + 1`` of ``g.ax`` is the step ``k -> k + 1``'s own: it is that step's
+    input (midpoint rule), and the lateral acceleration compared with ``g.ay[k + 1]`` is
+    the model's at that step's midpoint. `solve_demand`: the acceleration demand ``a`` of
+    each evaluation is the one at which the model's own ``F_X / m`` (the demand plus the
+    tyres' drag at that state) equals the measured ``a_x`` (``DEMAND_ITERATIONS`` fixed-
+    point steps from the previous evaluation's drag), so the demand follows the tyres
+    being fitted; False: the demand is ``a_x`` itself (the drag neglected)."""
     dt = float(g.t[1] - g.t[0])
     w = round(WINDOW_S / dt)
+    n = len(g.t)
     idx = starts[:, None] + np.arange(w)[None, :]
     v, d = g.v[idx], g.d[idx] + offset_rad
-    a = (g.ax if a_in is None else a_in)[idx]
+    ax_step = g.ax[np.minimum(idx + 1, n - 1)]  # column k: the mean over step k -> k + 1
     f = make_dynamic_derivatives(p, NUMPY_OPS, raw=True)
     m, linear = p.mass_kg, p.tyre_model == "linear"
+    solve = solve_demand and not linear  # linear: v' = a, F_X / m = a (no drag)
+    a_lim = _friction_accel(p)
     r = g.r[idx[:, 0]].copy()
     beta = beta_start(g, starts, p) if beta0 is None else np.asarray(beta0, dtype=float)
     r_out = np.empty_like(v)
@@ -813,6 +850,7 @@ def simulate_lateral(
     drag_out = np.empty_like(v)
     xdrag_out = np.zeros_like(v)
     sat_out = np.zeros_like(v, dtype=bool)
+    dem_out = np.empty_like(v)
     if p.tyre_model == "pacejka":
         peak_f = pacejka_peak_slip_rad(p, "front")
         peak_r = pacejka_peak_slip_rad(p, "rear")
@@ -829,36 +867,57 @@ def simulate_lateral(
             return (front[1] + rear[1]) / m
         return (front[0] * np.sin(dk) + front[1] * np.cos(dk) + rear[1]) / m
 
+    def body_x(front: tuple, rear: tuple, dk: np.ndarray) -> np.ndarray:
+        return (front[0] * np.cos(dk) - front[1] * np.sin(dk) + rear[0]) / m
+
+    xd = np.zeros(len(starts))  # the drag of the last evaluation: the next one's start
+
+    def evaluate(vk: np.ndarray, bk: np.ndarray, rk: np.ndarray, dk: np.ndarray,
+                 axk: np.ndarray) -> tuple[tuple, np.ndarray, np.ndarray]:
+        """(derivatives, demand, F_X / m - demand) at a state for the measured a_x."""
+        if not solve:
+            out = f(vk, bk, rk, dk, axk)
+            return out, axk, (np.zeros_like(axk) if linear else body_x(out[3], out[4], dk)
+                              - axk)
+        a = np.clip(axk - xd, -a_lim, a_lim)
+        for _ in range(DEMAND_ITERATIONS):
+            out = f(vk, bk, rk, dk, a)
+            a = np.clip(axk - (body_x(out[3], out[4], dk) - a), -a_lim, a_lim)
+        out = f(vk, bk, rk, dk, a)
+        return out, a, body_x(out[3], out[4], dk) - a
+
     for k in range(w):
         # the odometry's wheel speed is v cos(beta): the model's v is the CoG speed
-        vk, dk, ak = v[:, k] / np.cos(beta), d[:, k], a[:, k]
-        _dv, db, dr, fr, rr = f(vk, beta, r, dk, ak)
+        vk, dk, axk = v[:, k] / np.cos(beta), d[:, k], ax_step[:, k]
+        (dv, db, dr, fr, rr), ak, xd = evaluate(vk, beta, r, dk, axk)
         r_out[:, k] = r
-        ay_out[:, k] = lateral(fr, rr, dk)
-        drag_out[:, k] = _dv - ak
-        if not linear:
-            cd, sd = np.cos(dk), np.sin(dk)
-            xdrag_out[:, k] = (fr[0] * cd - fr[1] * sd + rr[0]) / m - ak
         sat_out[:, k] = saturated(fr, rr)
+        if k == 0:  # no step ends here: the sample's own instant
+            ay_out[:, 0], drag_out[:, 0], xdrag_out[:, 0] = lateral(fr, rr, dk), dv - ak, xd
+            dem_out[:, 0] = ak
         if k + 1 < w:
             b_mid = beta + 0.5 * dt * db
             vm = 0.5 * (v[:, k] + v[:, k + 1]) / np.cos(b_mid)
-            dm, am = 0.5 * (dk + d[:, k + 1]), 0.5 * (ak + a[:, k + 1])
-            _dv, db2, dr2, _f, _r = f(vm, b_mid, r + 0.5 * dt * dr, dm, am)
+            dm = 0.5 * (dk + d[:, k + 1])
+            (dv2, db2, dr2, f2, r2), am, xd = evaluate(vm, b_mid, r + 0.5 * dt * dr, dm, axk)
+            ay_out[:, k + 1], drag_out[:, k + 1], xdrag_out[:, k + 1] = (
+                lateral(f2, r2, dm), dv2 - am, xd)
+            dem_out[:, k + 1] = am
             beta = np.clip(beta + dt * db2, -0.8, 0.8)
             r = np.clip(r + dt * dr2, -20.0, 20.0)
-    return Lateral(r_out, ay_out, drag_out, xdrag_out, sat_out)
+    return Lateral(r_out, ay_out, drag_out, xdrag_out, sat_out, dem_out)
 
 
 def fit_tyres(
     g: Grid, base: DynamicVehicleParams, model: str, iterations: int = 30,
-    a_in: np.ndarray | None = None, theta_start: np.ndarray | None = None,
+    solve_demand: bool = True, theta_start: np.ndarray | None = None,
     starts: np.ndarray | None = None, fit_beta0: bool = False,
 ) -> tuple[dict[str, Estimate], dict[str, np.ndarray], dict[str, Any]]:
     """The tyre parameters of `model` and the steering offset (module docstring); also the
     predicted yaw rate, lateral acceleration and drags on the grid (NaN / 0 outside the
     windows) and whether the tyres' drag is known there (``known``: inside a window, or too
-    slow and straight for any). `a_in`: the acceleration demand (None: the measured a_x);
+    slow and straight for any). `solve_demand`: the acceleration demand solved from the
+    measured a_x with the tyres being fitted (``simulate_lateral``; False: a_x itself);
     `theta_start`: the start of the search (a previous fit's ``info["theta"]``); `starts`:
     the windows (None: ``_windows``); `fit_beta0`: fit each window's initial slip angle too
     (else the linear steady state of the current parameters). ``info["window_rms"]``: each
@@ -889,7 +948,7 @@ def fit_tyres(
 
     def residuals(theta: np.ndarray) -> np.ndarray:
         p, off = _params_from(theta[:n_g], model, base)
-        pred = simulate_lateral(g, starts, p, off, a_in, theta[n_g:] if n_w else None)
+        pred = simulate_lateral(g, starts, p, off, solve_demand, theta[n_g:] if n_w else None)
         r_p, ay_p = pred.r, pred.ay
         return np.concatenate([((r_p[:, burn:] - r_meas) / sig_r).ravel(),
                                ((ay_p[:, burn:] - ay_meas) / sig_ay).ravel()])
@@ -949,18 +1008,17 @@ def fit_tyres(
     JtJ_pinv = np.linalg.pinv(J.T @ J, rcond=1e-10)
     p_t, off_t = _params_from(theta[:n_g], model, base)
     b0 = theta[n_g:] if n_w else None
-    a_base = g.ax if a_in is None else a_in
     dres: dict[str, np.ndarray] = {
         "yaw_rate_radps": np.concatenate([(g.r[idx] - g.r[idx - 1]).ravel() / sig_r,
                                           np.zeros(idx.size)]),
         "ay_mps2": np.concatenate([np.zeros(idx.size),
                                    (g.ay[idx] - g.ay[idx - 1]).ravel() / sig_ay]),
     }
-    for name, fld in (("steering_rad", "d"), ("speed_mps", "v"), ("ax_mps2", "")):
-        x = a_base if not fld else getattr(g, fld)
+    for name, fld in (("steering_rad", "d"), ("speed_mps", "v"), ("ax_mps2", "ax")):
+        x = getattr(g, fld)
         x_late = np.concatenate([x[:1], x[:-1]])
-        g_s = replace(g, **{fld: x_late}) if fld else g
-        pr = simulate_lateral(g_s, starts, p_t, off_t, x_late if not fld else a_in, b0)
+        pr = simulate_lateral(replace(g, **{fld: x_late}), starts, p_t, off_t, solve_demand,
+                              b0)
         dres[name] = np.concatenate([((pr.r[:, burn:] - r_meas) / sig_r).ravel(),
                                      ((pr.ay[:, burn:] - ay_meas) / sig_ay).ravel()]) - res
     cov_sys = np.zeros_like(cov_jack)
@@ -971,7 +1029,8 @@ def fit_tyres(
     sig_sys = np.sqrt(np.maximum(np.diag(cov_sys), 0.0))
     names = TYRE_PARAMETERS[model]
     p_hat, off = _params_from(theta[:n_g], model, base)
-    pred = simulate_lateral(g, starts, p_hat, off, a_in, theta[n_g:] if n_w else None)
+    pred = simulate_lateral(g, starts, p_hat, off, solve_demand,
+                            theta[n_g:] if n_w else None)
     r_p, ay_p, sat = pred.r, pred.ay, pred.sat
     out: dict[str, Estimate] = {}
     sat_share = float(np.mean(sat[:, burn:]))
@@ -1062,14 +1121,15 @@ def identify(signals: Mapping[str, Any], base: DynamicVehicleParams,
     check_cornering(g)
     est: dict[str, Estimate] = {}
     steer, d_pred = fit_steering(g, base)
-    # pass 1 with the measured a_x as the demand, pass 2 with the tyres' drag taken out of
-    # it (the load transfer and the friction ellipse follow the demand)
-    # it (the load transfer and the friction ellipse follow the demand), without the
-    # windows the model fits worst (spins, recoveries: rms over OUTLIER_RMS x the median)
-    _t, lat1, info1 = fit_tyres(g, base, model)
+    # pass 1 with the measured a_x as the demand (the tyres' drag neglected: a start that
+    # does not depend on the tyres), pass 2 from there with the demand solved inside the
+    # simulation for the tyres being fitted (the load transfer and the friction ellipse
+    # follow it), without the windows pass 1 fits worst (spins, recoveries: rms over
+    # OUTLIER_RMS x the median)
+    _t, _lat1, info1 = fit_tyres(g, base, model, solve_demand=False)
     rms = info1["window_rms"]
     keep = info1["starts"][rms <= OUTLIER_RMS * np.median(rms)]
-    tyres, lat_pred, info = fit_tyres(g, base, model, 12, g.ax - lat1["xdrag"],
+    tyres, lat_pred, info = fit_tyres(g, base, model, PASS2_ITERATIONS, True,
                                       info1["theta"], keep)
     info["windows_dropped"] = len(rms) - len(keep)
     for k in ("theta", "starts", "window_rms"):
