@@ -19,8 +19,11 @@ lateral-error feedback) and runs three phases one after the other:
    than ``saturation_rad`` for ``saturation_hold_s`` (front or rear tyres saturating: the
    grip it has seen), stops the target rising and sets it to ``margin`` times the a_y
    where it saw that; so does a lateral error in a bend beyond ``line_share`` of the
-   room (the car cannot hold the line: ``margin`` times the largest a_y seen). Tells the
-   tyres.
+   room (the car cannot hold the line: ``margin`` times the largest a_y seen), and so does a
+   target the car does not reach by ``ay_lead_mps2`` (at its grip or its lock). Only the
+   rear's departure counts (less steering than linear: oversteer) unless
+   ``front_departure``; a front's early softness is no stop, its end is one of the two
+   others. Tells the tyres.
 
 Safety, always: the speed of every bend is capped by the envelope (with a braking
 distance before it at ``brake_mps2``), and the car brakes to ``v_safe_mps`` when its
@@ -72,6 +75,17 @@ class DriveSettings:
         margin: the target after saturation: this times the a_y where it was seen.
         line_share: a lateral error in a bend beyond this share of the room allowed
             counts as saturation too (the car cannot hold the line).
+        front_departure: whether more steering than the linear response (the front
+            saturating, understeer) counts as saturation too; by default only less
+            steering (the rear saturating, oversteer: the spin) does. A front's early
+            softness (a low B) turns the response nonlinear far below the peak and stopped
+            the envelope there; an understeering car that runs out of grip or steering
+            loses the line instead, which ``line_share`` catches.
+        ay_lead_mps2: a target more than this above the largest |a_y| measured is not
+            reached (the car at its grip or its steering lock): saturation, the target
+            then ``margin`` times the largest |a_y| (``envelope_raise``).
+        heading_step_rad: the speed steps go up only with the heading within this of the
+            centreline's (not while the car drifts towards an edge out of a bend).
     """
 
     speed_steps_s: float = 50.0
@@ -99,6 +113,9 @@ class DriveSettings:
     linear_ay_mps2: float = 3.0
     margin: float = 0.92
     line_share: float = 1.0
+    front_departure: bool = False
+    ay_lead_mps2: float = 0.5
+    heading_step_rad: float = 0.08
 
     @property
     def duration_s(self) -> float:
@@ -139,7 +156,8 @@ class Envelope:
         ay_saturation_mps2: the |a_y| where it was seen (nan before).
         sxx, sxy, n: sums of the linear fit ``delta - L kappa = K a_y``.
         over_s: how long the departure has lasted [s].
-        reason: why it saturated ("" before): "steering response" or "lost the line".
+        reason: why it saturated ("" before): "steering response", "lost the line" or
+            "target not reached".
     """
 
     ay_target_mps2: float
@@ -179,8 +197,9 @@ def envelope_update(env: Envelope, wheelbase_m: float, v_mps: float, steering_ra
                       n=env.n + 1)
     k = env.understeer_rad_per_mps2
     departure = sign * (y - k * ay_mps2)  # > 0: more steering than linear (front)
+    counted = abs(departure) if settings.front_departure else -departure
     over = env.over_s + dt_s if (a >= settings.linear_ay_mps2 and env.n >= 20 and
-                                 abs(departure) > settings.saturation_rad) else 0.0
+                                 counted > settings.saturation_rad) else 0.0
     env = replace(env, over_s=over, ay_seen_mps2=max(env.ay_seen_mps2, a))
     if over >= settings.saturation_hold_s and not env.saturated:
         return replace(env, saturated=True, ay_saturation_mps2=a, reason="steering response",
@@ -199,9 +218,16 @@ def envelope_lost_line(env: Envelope, settings: DriveSettings) -> Envelope:
 
 
 def envelope_raise(env: Envelope, settings: DriveSettings) -> Envelope:
-    """The target after a bend: one step up, unless saturation was seen (then it stays)."""
+    """The target after a bend: one step up, unless saturation was seen (then it stays).
+    A target more than ``ay_lead_mps2`` above the largest |a_y| the car has given is
+    saturation too ("target not reached": at its grip or its steering lock): the target
+    then drops to ``margin`` times what it gave, short of the grip it has seen."""
     if env.saturated:
         return env
+    seen = env.ay_seen_mps2
+    if seen >= settings.linear_ay_mps2 and env.ay_target_mps2 > seen + settings.ay_lead_mps2:
+        return replace(env, saturated=True, ay_saturation_mps2=seen,
+                       ay_target_mps2=settings.margin * seen, reason="target not reached")
     return replace(env, ay_target_mps2=min(env.ay_target_mps2 + settings.ay_step_mps2,
                                            settings.ay_max_mps2))
 
@@ -345,6 +371,10 @@ class DriveProgramme:
             speed = min(st.speed_levels_mps[k], cap)
             turning = abs(self.kappa[i]) > self.bend_kappa or abs(obs.yaw_rate_radps) > 0.5
             turning = turning or abs(obs.e_m) > 0.5 * room  # or off the line: no step up
+            e_psi = obs.yaw_rad - float(self.track.heading_at(obs.s_m))
+            e_psi = math.atan2(math.sin(e_psi), math.cos(e_psi))
+            # or heading off the line (drifting towards an edge): no step up either
+            turning = turning or abs(e_psi) > st.heading_step_rad
             if turning:  # steps up on the straights only (no power oversteer)
                 speed = min(speed, max(state.last_speed_mps, obs.v_mps) + st.accel_mps2 * dt)
         elif state.phase == "steering_steps":

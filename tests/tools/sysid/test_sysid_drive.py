@@ -68,8 +68,13 @@ def test_envelope_keeps_rising_on_a_linear_car() -> None:
     assert env.ay_target_mps2 == pytest.approx(st.ay_first_mps2 + 30 * st.ay_step_mps2)
 
 
+def oversteering(ay: float) -> float:
+    """Linear up to 4.5 m/s^2, then ever less steering (the rear tyres saturating)."""
+    return linear(ay) - 0.08 * max(abs(ay) - 4.5, 0.0) ** 1.5 * math.copysign(1.0, ay)
+
+
 def test_envelope_stops_rising_at_saturation() -> None:
-    st = DriveSettings()
+    st = DriveSettings(front_departure=True)
     env, targets = drive_bends(st, saturating, grip=20.0)
     assert env.saturated and env.reason == "steering response"
     # the departure passes saturation_rad (0.05 rad) a little above 4.5 m/s^2
@@ -78,6 +83,30 @@ def test_envelope_stops_rising_at_saturation() -> None:
     stop = int(np.argmax(np.diff(targets) <= 0)) + 1
     assert max(targets) < 6.5 and np.all(np.diff(targets[stop:]) <= 0)
     assert envelope_raise(env, st) == env  # it no longer rises
+
+
+def test_envelope_stops_rising_at_the_rears_saturation() -> None:
+    st = DriveSettings()  # by default only the rear's departure (oversteer) counts
+    env, targets = drive_bends(st, oversteering, grip=20.0)
+    assert env.saturated and env.reason == "steering response"
+    assert 4.5 < env.ay_saturation_mps2 < 6.0
+    assert env.ay_target_mps2 == pytest.approx(st.margin * env.ay_saturation_mps2)
+    assert max(targets) < 6.5
+    assert envelope_raise(env, st) == env
+
+
+def test_envelope_goes_on_past_the_fronts_softness_but_not_past_what_it_sees() -> None:
+    st = DriveSettings()  # the front's extra steering (understeer) is not a stop...
+    env, targets = drive_bends(st, saturating, grip=20.0, bends=30)
+    assert not env.saturated
+    # ...and a car that gives at most 5 m/s^2 (its grip or its lock) is not asked for
+    # more: a target the lead above it is saturation, then short of what it gave
+    env, targets = drive_bends(st, linear, grip=5.0, bends=40)
+    assert env.saturated and env.reason == "target not reached"
+    assert max(targets) <= 5.0 + st.ay_lead_mps2 + st.ay_step_mps2 + 1e-9
+    assert env.ay_saturation_mps2 == pytest.approx(5.0, abs=0.01)
+    assert env.ay_target_mps2 == pytest.approx(st.margin * 5.0, abs=0.01)
+    assert envelope_raise(env, st) == env
 
 
 def test_envelope_stops_when_the_line_is_lost() -> None:
