@@ -251,7 +251,8 @@ class SysidResult:
 
     def vehicle_overlay(self, base: DynamicVehicleParams) -> dict[str, Any]:
         """The ``[vehicle]`` fields of the identified car: the identifiable estimates, the
-        base car's values for the rest (``tyre_model`` the fitted model)."""
+        base car's values for the rest (``tyre_model`` the fitted model); a Pacejka axle's
+        B, C and D all as fitted once any of them is written."""
         e = {k: v for k, v in self.estimates.items()
              if v.identifiable or v.note.startswith(PRODUCT_ONLY) or _extrapolated_d(v)}
         out: dict[str, Any] = {"tyre_model": self.model}
@@ -278,10 +279,18 @@ class SysidResult:
             out["mu"] = 1.0
             for axle in ("front", "rear"):
                 coeffs = list(base.pacejka_front if axle == "front" else base.pacejka_rear)
-                for i, letter in enumerate("BCD"):
-                    est = e.get(f"pacejka_{axle}_{letter}")
-                    if est is not None:
-                        coeffs[i] = _round(est.value)
+                names = [f"pacejka_{axle}_{letter}" for letter in "BCD"]
+                # an axle's B, C and D are one fit: once any of them is written, all are
+                # (the base's neutral B = 10 beside a fitted C and D is a curve neither
+                # the data nor the base tells: the identified car's rear B, "uncertainty
+                # 60 %", kept at 10 beside C 1.6 halved its stiffness and doubled the slip
+                # the line planned; raceline raced paperlike at 1.25 x the limit, 1.04
+                # with the fitted B)
+                if any(n in e for n in names):
+                    for i, n in enumerate(names):
+                        est = self.estimates.get(n)
+                        if est is not None and math.isfinite(est.value):
+                            coeffs[i] = _round(est.value)
                 out[f"pacejka_{axle}"] = coeffs
         return out
 

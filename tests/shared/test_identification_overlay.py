@@ -39,3 +39,16 @@ def test_b_and_c_of_a_told_product_are_written_and_the_rest_keeps_the_base() -> 
     out = res.vehicle_overlay(BASE)
     assert out["pacejka_rear"][:2] == [14.0, 1.8]
     assert out["pacejka_front"][0] == 10.0
+
+
+def test_an_axle_s_curve_is_written_whole_once_any_of_it_is() -> None:
+    """A rear B too uncertain to be identified on its own, beside a C and D that are: the
+    fitted B goes with them (the base's neutral B = 10 beside C 1.6 would halve the tyre's
+    stiffness); an axle none of whose letters is written keeps the base."""
+    res = _result(pacejka_rear_B=(18.3, 11.0, False, "uncertainty 60 % of the value"),
+                  pacejka_rear_C=(1.6, 0.26, True, ""),
+                  pacejka_rear_D=(0.61, 0.001, True, ""),
+                  pacejka_front_B=(5.0, 9.0, False, "uncertainty 180 % of the value"))
+    out = res.vehicle_overlay(BASE)
+    assert out["pacejka_rear"] == [18.3, 1.6, 0.61, 0.0]
+    assert out["pacejka_front"] == [10.0, 1.5, 1.0, 0.373]
