@@ -285,6 +285,23 @@ class RacelineSettings(Section):
         "car's line: 3.0-4.4 x its limit with 16-82 spins a cell off, 1.41-1.46 with 0-7 "
         "spins at 0.3 (README, issue #21)",
     )
+    grip_yaw_error_radps: float = Field(
+        0.8, ge=0.0, le=20.0,
+        description="grip adaptation: a tick the car's yaw rate is further than this from its "
+        "plan's [rad/s] (from the last two poses, against the plan's at the speed scale, "
+        "either way), grip_yaw_ticks in a row, cuts the scale too: tyres that cannot turn "
+        "the car as planned before it strays from its line; 0: off",
+    )
+    grip_yaw_error_share: float = Field(
+        0.25, ge=0.0, le=5.0,
+        description="grip adaptation: the yaw-rate error allowed grows by this share of the "
+        "plan's yaw rate [1] (the gym's linear tyres drift through their tightest bends, "
+        "where the car follows the plan's yaw less exactly)",
+    )
+    grip_yaw_ticks: int = Field(
+        2, ge=1, le=100,
+        description="grip adaptation: ticks in a row beyond grip_yaw_error_radps to cut",
+    )
     grip_step: float = Field(
         0.02, ge=0.0, le=0.5,
         description="grip adaptation: the speed scale's cut per tick beyond grip_error_m [1]",
@@ -324,6 +341,17 @@ class RacelineSettings(Section):
         0.15, gt=0.0, le=2.0,
         description="cautious out lap: the grip adaptation's grip_error_m while it lasts "
         "(the car below its plan strays less; a slide caught at 0.15 m instead of 0.3) [m]",
+    )
+    servo_lag_estimate: bool = Field(
+        True,
+        description="measure the servo's lag while racing (the yaw response to the steering "
+        "sent, services/planner/raceline/servo_lag.py) and invert the measured lag when it "
+        "differs from the car's steering_time_constant_s by more than servo_lag_switch_s",
+    )
+    servo_lag_switch_s: float = Field(
+        0.08, gt=0.0, le=1.0,
+        description="how far the measured servo lag must be from the one acted on before the "
+        "tracker takes it [s] (the F1TENTH gym's car measures within 0.02 s of its own)",
     )
     speed_delay_s: float = Field(
         0.012, ge=0.0, le=1.0,

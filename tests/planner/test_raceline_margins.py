@@ -74,7 +74,7 @@ def test_each_pose_source_adds_its_own_margin() -> None:
 
 
 def _circle_planner(radius: float = 3.0, width: float = 0.6, line_share: float = 1.0,
-                    **raceline):
+                    vehicle=None, **raceline):
     """A raceline planner on a circle (its line 0.2 m outside the centreline), driving
     `line_share` of its line's speeds; the cautious out lap off unless asked (these tests
     judge the grip adaptation from the plan's speed)."""
@@ -85,7 +85,7 @@ def _circle_planner(radius: float = 3.0, width: float = 0.6, line_share: float =
     tr = circle(radius, n=300, width=width)
     settings = PlannerSettings(method="raceline", raceline=RacelineSettings(**raceline))
     return RacelinePlanner(tr, settings, min_time_loader=lambda t, v, s: circle_lap(
-        t, radius, 3.5, 0.15), speed_scale=line_share)
+        t, radius, 3.5, 0.15), speed_scale=line_share, vehicle=vehicle)
 
 
 def _rear_axle_at(planner, s: float, offset_m: float = 0.0) -> tuple[float, float, float]:
@@ -317,3 +317,42 @@ def test_a_pass_starts_only_once_planned_three_ticks_in_a_row() -> None:
     assert offsets[:4] == [0.0] * 4  # a pass for 1 tick, then 2 in a row: not started
     assert offsets[4] < 0.0  # the third in a row: started
     assert offsets[5] < offsets[4] and planner.plan.mode == "pass"
+
+
+def _yawing_along(planner, ticks: int, s: float, extra_yaw: float, excess_radps: float,
+                  ) -> tuple[float, float]:
+    """`ticks` poses along the line at its own speed, the car turning `excess_radps` faster
+    (negative: slower) than the line (its heading `extra_yaw` [rad] beyond the line's so
+    far); returns (s, extra_yaw) after them."""
+    dt = planner.settings.dt_s
+    for _ in range(ticks):
+        s += planner.speed_scale * planner.raceline.reference.at("v", s) * dt
+        extra_yaw += excess_radps * dt
+        x, y, yaw = _rear_axle_at(planner, s)
+        planner.step(x, y, yaw + extra_yaw)
+    return s, extra_yaw
+
+
+def test_a_car_turning_off_its_line_s_yaw_rate_slows_down_before_it_strays() -> None:
+    planner = _circle_planner(grip_yaw_error_radps=0.5, grip_yaw_ticks=2, grip_step=0.05)
+    s, extra = _yawing_along(planner, 10, 0.0, 0.0, 0.0)
+    assert planner.speed_scale == 1.0  # on its line at its yaw rate: the plan
+    s, extra = _yawing_along(planner, 1, s, extra, 1.0)  # one tick of a twitch: no slide
+    s, extra = _yawing_along(planner, 2, s, extra, 0.0)
+    assert planner.speed_scale == 1.0
+    s, extra = _yawing_along(planner, 3, s, extra, 1.0)  # the rear letting go: 2nd, 3rd cut
+    assert planner.speed_scale == pytest.approx(0.95 ** 2)
+    s, extra = _yawing_along(planner, 2, s, extra, 0.3)  # within the error: no cut
+    assert planner.speed_scale == pytest.approx(0.95 ** 2)
+    s, extra = _yawing_along(planner, 2, s, extra, -1.0)  # turning less (understeer): cut
+    assert planner.speed_scale == pytest.approx(0.95 ** 3)
+    off = _circle_planner(grip_yaw_error_radps=0.0, grip_step=0.05)
+    s, extra = _yawing_along(off, 5, 0.0, 0.0, 0.0)
+    _yawing_along(off, 5, s, extra, 1.0)
+    assert off.speed_scale == 1.0  # 0: off
+    # the gym's unbounded linear tyres: no grip peak to find (their lines drift)
+    gym_linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
+    lin = _circle_planner(grip_yaw_error_radps=0.5, grip_step=0.05, vehicle=gym_linear)
+    s, extra = _yawing_along(lin, 5, 0.0, 0.0, 0.0)
+    _yawing_along(lin, 5, s, extra, 1.0)
+    assert lin.speed_scale == 1.0

@@ -62,6 +62,12 @@ from services.planner.opponents import OpponentEstimate, predict_on_line
 from services.planner.raceline.join import MAX_SLOPE as MAX_JOIN_SLOPE
 from services.planner.raceline.join import LineJoin
 from services.planner.raceline.overtake import FREE, OvertakeParams, OvertakePlan, plan_around
+from services.planner.raceline.servo_lag import (
+    ServoLagEstimator,
+    ServoLagSettings,
+    linear_lateral_mps2,
+    yaw_lag_s,
+)
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import (
     TELEPORT_JUMP_M,
@@ -71,6 +77,7 @@ from services.planner.recovery import (
     handover_accel_mps2,
     ramps_from_rest,
 )
+from shared.angles import wrap_angle
 from shared.config.methods import RACELINE
 from shared.config.planner import CurvatureSettings, PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
@@ -418,8 +425,14 @@ def planner_timing(
     tau = servo_reach(vehicle or F1TENTH_GYM)
     if tau is None:
         return TrackerTiming(settings.dt_s, o.speed_delay_s, o.steering_delay_s)
-    pure = max(o.steering_delay_s - SERVO_ALLOWANCE_S, 0.0)
-    return TrackerTiming(settings.dt_s, o.speed_delay_s, pure, servo_time_constant_s=tau)
+    return TrackerTiming(settings.dt_s, o.speed_delay_s, pure_servo_delay_s(settings),
+                         servo_time_constant_s=tau)
+
+
+def pure_servo_delay_s(settings: PlannerSettings) -> float:
+    """Pose -> the servo's target [s]: ``[planner.raceline] steering_delay_s`` without the
+    gym servo's share (``SERVO_ALLOWANCE_S``): the window of a lag that is inverted."""
+    return max(settings.raceline.steering_delay_s - SERVO_ALLOWANCE_S, 0.0)
 
 
 def tracker_gains(settings: RacelineSettings) -> TrackerGains:
@@ -485,6 +498,14 @@ class RacelinePlanner:
             tracker_gains(self.options),
             self.vehicle,
         )
+        #: the timing the planner was told (``reset`` returns to it)
+        self._told_timing = self.tracker.timing
+        self.servo_lag: ServoLagEstimator | None = None  #: measures the servo while racing
+        if self.options.servo_lag_estimate:
+            self.servo_lag = ServoLagEstimator(ServoLagSettings(
+                settings.dt_s, pure_servo_delay_s(settings),
+                self.vehicle.lf_m + self.vehicle.lr_m,
+                max_lateral_mps2=linear_lateral_mps2(self.vehicle)))
         curvature = curvature or CurvatureSettings()
         self.profile = track_profile(track, curvature)
         self._timer = timer
@@ -534,10 +555,45 @@ class RacelinePlanner:
         self._offset = 0.0  #: the lateral offset the tracker drives, ramped [m]
         self.plan = FREE
         self._pass_ticks = 0  #: ticks in a row a pass was planned but not yet started
+        self._last_yaw: float | None = None  #: the last pose's yaw [rad]
+        self._yaw_rate: float | None = None  #: the yaw rate over the last period [rad/s]
+        self._travel_mps: float | None = None  #: the distance over the last period / dt
+        self._yaw_ticks = 0  #: ticks in a row with the yaw rate off the plan's (grip)
         #: the join onto the line in progress (``raceline.join``), and whether the next
         #: step starts one (the start, a move, a hand-back from the recovery rule)
         self._join: LineJoin | None = None
         self._join_pending = True
+        if self.servo_lag is not None:
+            self.servo_lag.reset()
+        if self.tracker.timing != self._told_timing:
+            self._retime(self._told_timing)
+        #: the servo's lag the tracker acts on [s] (the told car's until one is measured)
+        self.servo_lag_s = self.vehicle.steering_time_constant_s
+
+    def _retime(self, timing: TrackerTiming) -> None:
+        """The tracker (and the slower lines' ones) acting on `timing`."""
+        self.tracker.retime(timing)
+        self.__dict__.pop("_slow_trackers", None)  # rebuilt with it when next needed
+
+    def _measure_servo(self, x_m: float, y_m: float, yaw_rad: float) -> None:
+        """Feed the servo-lag estimator this tick's pose; when the lag it measures (less the
+        car's own yaw lag, ``yaw_lag_s``) is ``servo_lag_switch_s`` from the one acted on,
+        the tracker inverts the measured one (``TrackerTiming.servo_time_constant_s``)."""
+        est_lag = self.servo_lag
+        if est_lag is None:
+            return
+        est_lag.observe(x_m, y_m, yaw_rad)
+        est = est_lag.estimate()
+        if est is None:
+            return
+        tau = max(est.tau_s - yaw_lag_s(self.vehicle, est.speed_mps), 0.0)
+        if abs(tau - self.servo_lag_s) <= self.options.servo_lag_switch_s:
+            return
+        self.servo_lag_s = tau
+        told = self._told_timing
+        pure = pure_servo_delay_s(self.settings)
+        self._retime(TrackerTiming(told.period_s, told.speed_delay_s, pure,
+                                   servo_time_constant_s=tau))
 
     def set_opponents(self, opponents: Sequence[OpponentEstimate]) -> None:
         """The other cars for the next steps (an empty list: race the line alone)."""
@@ -647,7 +703,13 @@ class RacelinePlanner:
             return self._result(
                 cmd, x_m, y_m, yaw_rad, 0.0, 0.0, 0.0, "non-finite pose", t0, status=BRAKING
             )
+        self._measure_servo(x_m, y_m, yaw_rad)
+        last_yaw, self._last_yaw = self._last_yaw, yaw_rad
+        self._yaw_rate = (None if last_yaw is None
+                          else wrap_angle(yaw_rad - last_yaw) / self.settings.dt_s)
         last, self._last_xy = self._last_xy, (x_m, y_m)
+        self._travel_mps = (None if last is None
+                            else math.hypot(x_m - last[0], y_m - last[1]) / self.settings.dt_s)
         if last is not None and math.hypot(x_m - last[0], y_m - last[1]) > TELEPORT_JUMP_M:
             self._relocate()  # the car was moved: search the whole track, start afresh
         lr = self.vehicle.lr_m
@@ -739,7 +801,9 @@ class RacelinePlanner:
                                   speed_scale=self.speed_scale, offset_slope=slope)
         self._s_line = tc.s_m
         self._cautious_start(tc.s_m)
+        yaw_error = self._yaw_error(tc.s_m)
         if plan is FREE and (self._join is not None or self._offset == 0.0):
+            self._adapt_grip_yaw(yaw_error)
             # judged from the line or a join's path, never beside a car: there the car lags
             # its ramped offset by more than a slide (with grip_error_m 0.3 the adaptation
             # fired in 7 of 10 passes on Oschersleben and slowed the car for good)
@@ -748,6 +812,7 @@ class RacelinePlanner:
             # again (the offset reaches 0 before the car: Oschersleben seed 725 cut the
             # speed scale to 0.92 there, 0.4 m from the line, and left the track)
             self._on_line = False
+            self._yaw_ticks = 0
         speed = tc.speed_mps
         steering = tc.steering_rad
         if plan is not FREE:
@@ -840,6 +905,45 @@ class RacelinePlanner:
             self.speed_scale = max(o.grip_min_scale, self.speed_scale * (1.0 - o.grip_step))
             self._start_phase = None  # the car slid: no cautious start to end
 
+    def _yaw_error(self, s_line_m: float) -> float | None:
+        """How far the car's yaw rate over the last period was from its plan's at the car's
+        own speed [rad/s] (from the last two poses; the plan's yaw per metre there, half a
+        period back, times the distance the car went over the period: a car held below the
+        line's speed turns slower too), either way (a rear letting go or a front pushing
+        wide), less ``grip_yaw_error_share`` of the plan's (the tight bends a line drifts
+        through are followed less exactly). None: no last pose, or the car on a join's
+        path."""
+        if self._yaw_rate is None or self._travel_mps is None or self._join is not None:
+            return None
+        ref = self.raceline.reference
+        v = self._travel_mps
+        s_mid = s_line_m - 0.5 * self.settings.dt_s * v
+        per_m = float(ref.at("r", s_mid)) / max(float(ref.at("v", s_mid)), 0.1)
+        r_plan = per_m * v
+        return abs(self._yaw_rate - r_plan) - self.options.grip_yaw_error_share * abs(r_plan)
+
+    def _adapt_grip_yaw(self, error: float | None) -> None:
+        """The grip adaptation on the yaw rate: ``grip_yaw_ticks`` ticks in a row with the
+        yaw rate more than ``grip_yaw_error_radps`` from the plan's (the car still on its
+        line, its tyres not doing what the plan asks) cut the speed scale by ``grip_step``
+        as a slide does."""
+        o = self.options
+        # (not for the gym's unbounded `linear` tyres: no grip peak to find, and their line
+        # drifts through bends tighter than the lock turns the car, where a car a little
+        # off the line's slip yaws very differently: held out, gen-7 and gen-20 were cut to
+        # 1.15-1.46 x the limit; judged only near such bends, the same)
+        if (o.grip_yaw_error_radps <= 0.0 or not self._on_line
+                or self.vehicle.tyre_model == "linear"):
+            self._yaw_ticks = 0
+            return
+        if error is None or error <= o.grip_yaw_error_radps:
+            self._yaw_ticks = 0
+            return
+        self._yaw_ticks += 1
+        if self._yaw_ticks >= o.grip_yaw_ticks:
+            self.speed_scale = max(o.grip_min_scale, self.speed_scale * (1.0 - o.grip_step))
+            self._start_phase = None
+
     def _start_join(self, cx: float, cy: float, hint: float | None) -> LineJoin | None:
         """The join onto the line from the CoG (`cx`, `cy`) [m] (``raceline.join``), or
         None when the car is on the line already."""
@@ -917,6 +1021,8 @@ class RacelinePlanner:
         status: str = SOLVED,
     ) -> SolveResult:
         """The record of one tick: the preview is the raceline ahead at the profile speed."""
+        if self.servo_lag is not None:
+            self.servo_lag.commanded(cmd.steering_rad)
         N, dt = self.horizon, self.settings.dt_s
         line = self.raceline.track
         states = np.zeros((N + 1, 4))

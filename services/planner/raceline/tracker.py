@@ -146,10 +146,15 @@ class ReferenceLap:
         }
         for name, arr in (("kappa", self.kappa_1pm), ("v", self.v_mps), ("delta", self.delta_rad)):
             tables[name] = np.append(arr, arr[0])
+        # the yaw rate d(psi_p)/dt: each segment's, at a node the mean of its two segments
+        seg = np.diff(tables["yaw"]) / np.diff(tables["t"])
+        node = 0.5 * (seg + np.roll(seg, 1))
+        tables["r"] = np.append(node, node[0])
         return tables
 
     def at(self, name: str, s_m: float | np.ndarray) -> float | np.ndarray:
-        """Table `name` ("yaw", "kappa", "v", "delta", "t") linearly interpolated at arc
+        """Table `name` ("yaw", "kappa", "v", "delta", "t", "r": the yaw rate [rad/s])
+        linearly interpolated at arc
         length(s) `s_m` [m] (periodic; "yaw" in the unwrapped lap's range, "t" in [0, T))."""
         c = self._closed
         out = np.interp(np.mod(s_m, self.length_m), c["s"], c[name])
@@ -415,6 +420,13 @@ class Tracker:
         return cls(
             plan, timing, gains, vehicle.speed_gain_accel_per_s, vehicle.speed_gain_brake_per_s
         )
+
+    def retime(self, timing: TrackerTiming) -> None:
+        """Act on `timing` from the next command (a servo's lag measured while racing)."""
+        self.timing = timing
+        self._w_speed = timing.window(timing.speed_delay_s)
+        self._w_steer = timing.window(timing.steering_delay_s)
+        self._e_la_prev = None
 
     def reset(self, s_hint_m: float | None = None) -> None:
         """Forget where the car was (None: the next call searches the whole path)."""
