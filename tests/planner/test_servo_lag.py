@@ -11,6 +11,7 @@ from services.planner.raceline.servo_lag import (
     ServoLagEstimator,
     ServoLagSettings,
     yaw_lag_s,
+    yaw_lag_table,
 )
 from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED
 
@@ -111,6 +112,8 @@ def test_the_car_s_own_yaw_lag_is_a_few_hundredths_of_a_second() -> None:
     for car in (F1TENTH_GYM, REAL_CAR_IDENTIFIED):
         lags = [yaw_lag_s(car, v) for v in (1.5, 3.5, 7.0)]
         assert all(0.005 < lag < 0.05 for lag in lags)
+        speeds, table = yaw_lag_table(car)  # what the planner reads each tick
+        assert np.interp(3.3, speeds, table) == pytest.approx(yaw_lag_s(car, 3.3), abs=1e-3)
 
 
 @pytest.mark.slow

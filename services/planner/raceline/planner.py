@@ -66,7 +66,7 @@ from services.planner.raceline.servo_lag import (
     ServoLagEstimator,
     ServoLagSettings,
     linear_lateral_mps2,
-    yaw_lag_s,
+    yaw_lag_table,
 )
 from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
 from services.planner.recovery import (
@@ -570,6 +570,11 @@ class RacelinePlanner:
         #: the servo's lag the tracker acts on [s] (the told car's until one is measured)
         self.servo_lag_s = self.vehicle.steering_time_constant_s
 
+    @cached_property
+    def _yaw_lags(self) -> tuple[np.ndarray, np.ndarray]:
+        """The car's own yaw lag by speed (``servo_lag.yaw_lag_table``)."""
+        return yaw_lag_table(self.vehicle)
+
     def _retime(self, timing: TrackerTiming) -> None:
         """The tracker (and the slower lines' ones) acting on `timing`."""
         self.tracker.retime(timing)
@@ -586,7 +591,7 @@ class RacelinePlanner:
         est = est_lag.estimate()
         if est is None:
             return
-        tau = max(est.tau_s - yaw_lag_s(self.vehicle, est.speed_mps), 0.0)
+        tau = max(est.tau_s - float(np.interp(est.speed_mps, *self._yaw_lags)), 0.0)
         if abs(tau - self.servo_lag_s) <= self.options.servo_lag_switch_s:
             return
         self.servo_lag_s = tau

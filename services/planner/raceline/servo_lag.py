@@ -44,7 +44,7 @@ import numpy as np
 
 from shared.angles import wrap_angle
 from shared.config.vehicle import GRAVITY_MPS2, DynamicVehicleParams
-from shared.vehicle.identification import NUMPY_OPS
+from shared.vehicle.ops import FLOAT_OPS
 from shared.vehicle.single_track import make_dynamic_derivatives
 from shared.vehicle.tyres import axle_peak_friction
 
@@ -59,6 +59,8 @@ SLIDE_FLOOR_RADPS = 0.3
 #: hundredths of a second; with every sample, the gym's drifting linear tyres and the
 #: identified car near its peak read 0.05-0.07 s slower than their servos.
 LINEAR_SHARE = 0.5
+#: The speeds of ``yaw_lag_table`` [m/s].
+TABLE_SPEEDS_MPS = np.linspace(0.5, 12.0, 24)
 #: A pose this far from the last one [m] over one period is a jump (a reset, a teleport).
 JUMP_M = 1.0
 
@@ -138,14 +140,13 @@ def yaw_lag_s(vehicle: DynamicVehicleParams, speed_mps: float) -> float:
     A)^-1 B`` from the wheel angle to ``r`` over the states ``(beta, r)``. The estimator's
     kinematic relation has no tyres, so what it measures is the servo's lag plus this
     (about 0.04 s for the F1TENTH gym's car at 3-4 m/s)."""
-    f = make_dynamic_derivatives(vehicle, NUMPY_OPS, raw=True)
+    f = make_dynamic_derivatives(vehicle, FLOAT_OPS, raw=True)
     v = max(float(speed_mps), 0.5)
     h = 1e-5
 
     def rates(beta: float, r: float, delta: float) -> np.ndarray:
-        out = f(np.array([v]), np.array([beta]), np.array([r]), np.array([delta]),
-                np.array([0.0]))
-        return np.array([float(out[1][0]), float(out[2][0])])
+        out = f(v, beta, r, delta, 0.0)
+        return np.array([float(out[1]), float(out[2])])
 
     x0 = rates(0.0, 0.0, 0.0)
     a = np.column_stack([(rates(h, 0.0, 0.0) - x0) / h, (rates(0.0, h, 0.0) - x0) / h])
@@ -155,6 +156,12 @@ def yaw_lag_s(vehicle: DynamicVehicleParams, speed_mps: float) -> float:
     h0 = -float(c @ a_inv_b)  # H(0)
     h1 = -float(c @ np.linalg.solve(a, a_inv_b))  # H'(0)
     return -h1 / h0 if abs(h0) > 1e-12 else 0.0
+
+
+def yaw_lag_table(vehicle: DynamicVehicleParams) -> tuple[np.ndarray, np.ndarray]:
+    """``yaw_lag_s`` on ``TABLE_SPEEDS_MPS``: (speeds [m/s], lags [s]), for ``np.interp``
+    (a planner reads it every tick; one linearisation costs about 0.2 ms)."""
+    return TABLE_SPEEDS_MPS, np.array([yaw_lag_s(vehicle, v) for v in TABLE_SPEEDS_MPS])
 
 
 class ServoLagEstimator:
