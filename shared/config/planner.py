@@ -311,6 +311,38 @@ class RacelineSettings(Section):
         description="grip adaptation: the lowest speed scale (0.7 of the plan's speeds, "
         "0.49 of its lateral acceleration) [1]",
     )
+    grip_profile: bool = Field(
+        True,
+        description="grip adaptation: read the speed scale as grip (c^2 of the lateral "
+        "acceleration the line asks in its bends) and re-plan the line's speed profile within "
+        "it on the friction ellipse (straights stay at the cap, gentle bends slow less: "
+        "raceline.grip_profile), once the scale has held for grip_profile_settle_ticks; "
+        "false: the whole line at c times its speeds",
+    )
+    grip_profile_long_share: float = Field(
+        0.7, gt=0.0, le=1.0,
+        description="grip profile: the share of the grip the re-planned profile spends on "
+        "braking into and driving out of the bends [1]",
+    )
+    grip_profile_lateral_share: float = Field(
+        0.9, gt=0.0, le=1.0,
+        description="grip profile: the share of the grip found the re-planned profile "
+        "spends across the track [1] (tuned on gen:1001-1015 with the identified car on "
+        "the gym car's line: 0.85 / 0.9 / 0.95 / 1 gave 2 / 2 / 11 / 15 spins)",
+    )
+    grip_relearn_on_servo: bool = Field(
+        True,
+        description="grip adaptation: when the servo's lag is first measured and acted on, "
+        "the speed scale returns to start_speed_scale if it was cut below it (those cuts "
+        "came partly from the servo the tracker had not inverted) and the grip is learnt "
+        "afresh",
+    )
+    grip_profile_settle_ticks: int = Field(
+        10, ge=1, le=1000,
+        description="grip profile: re-planned once the speed scale has not been cut for "
+        "this many ticks (a slide cuts it tick after tick; the cuts in between scale the "
+        "last profile)",
+    )
     speed_share: float = Field(
         1.0, gt=0.1, le=1.0,
         description="race the line at this share of its speeds: a slower car that keeps "

@@ -59,6 +59,7 @@ from services.planner.mintime.requests import (
 )
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
 from services.planner.opponents import OpponentEstimate, predict_on_line
+from services.planner.raceline.grip_profile import grip_raceline, line_grip_mps2
 from services.planner.raceline.join import MAX_SLOPE as MAX_JOIN_SLOPE
 from services.planner.raceline.join import LineJoin
 from services.planner.raceline.overtake import FREE, OvertakeParams, OvertakePlan, plan_around
@@ -489,6 +490,9 @@ class RacelinePlanner:
         self.raceline = scaled_raceline(self.raceline, speed_scale, self.vehicle)
         #: the share of the line's own speeds this planner's profile drives (a slower car)
         self.line_share = float(speed_scale)
+        #: the line as built; ``raceline`` is it, or it re-planned for the grip found
+        #: (``_replan_for_grip``) until the next ``reset``
+        self.built_line = self.raceline
         self.overtake = overtake or OvertakeParams()
         self.opponents: list[OpponentEstimate] = []
         self.plan: OvertakePlan = FREE  #: the last tick's plan around the opponents
@@ -532,6 +536,17 @@ class RacelinePlanner:
         #: the grip adaptation's speed scale (``step``): 1 until the car strays off the line
         #: (the cautious out lap's start scale on a line the car can drive slower)
         o = self.options
+        if self.raceline is not self.built_line:  # the line as built, for the told grip
+            self._follow(self.built_line, 1.0)
+        #: the speed scale the current ``raceline``'s profile was re-planned for (1: the
+        #: line's own); the tracker drives it at ``speed_scale / profile_scale``
+        self.profile_scale = 1.0
+        self._scale_seen = 1.0  #: the speed scale at the last tick (a cut: lower)
+        self._scale_quiet = 0  #: ticks since the speed scale was last cut
+        #: the servo's lag has been measured (or is not measured: the told car's is used)
+        self._servo_known = not self.options.servo_lag_estimate
+        #: the grip is to be learnt afresh once the scale settles (``grip_relearn_on_servo``)
+        self._relearn = False
         # a car racing below its line (``line_share``: a slower car) keeps its pace from
         # the start: held at 0.8 of its own 0.85, 0.68 of the line, whose steering is not
         # the slower plan's, it left map416 twice in every start; held at 0.8 of the line,
@@ -591,10 +606,16 @@ class RacelinePlanner:
         est = est_lag.estimate()
         if est is None:
             return
+        self._servo_known = True
         tau = max(est.tau_s - float(np.interp(est.speed_mps, *self._yaw_lags)), 0.0)
-        if abs(tau - self.servo_lag_s) <= self.options.servo_lag_switch_s:
+        o = self.options
+        if abs(tau - self.servo_lag_s) <= o.servo_lag_switch_s:
             return
+        measured = self.tracker.timing != self._told_timing  # a measured lag acted on
         self.servo_lag_s = tau
+        # the cuts so far were (partly) the servo's: once the slide has settled, the grip
+        # is learnt afresh (``_replan_for_grip``)
+        self._relearn = self._relearn or (o.grip_relearn_on_servo and not measured)
         told = self._told_timing
         pure = pure_servo_delay_s(self.settings)
         self._retime(TrackerTiming(told.period_s, told.speed_delay_s, pure,
@@ -611,11 +632,11 @@ class RacelinePlanner:
         s_e, e_e = self.tracker.project(cx, cy, hint)
         t = self.overtake.times()
         line = self.raceline.track
-        ref = self.raceline.reference  # opponents keep their share of its profile
+        ref = self.built_line.reference  # opponents keep their share of its profile
         preds = [predict_on_line(line, o, t, s_e, ref) for o in self.opponents]
         return plan_around(
             self.raceline.reference, s_e, e_e, preds, self._offset, self.overtake,
-            v_e_mps=self._speed_cmd, speed_scale=self.speed_scale,
+            v_e_mps=self._speed_cmd, speed_scale=self.tracker_scale,
         )
 
     @cached_property
@@ -803,7 +824,7 @@ class RacelinePlanner:
                 fast = self.overtake.lateral_rate_mps * self.settings.dt_s
                 self._offset = before + min(max(target - before, -fast), fast)
         tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset,
-                                  speed_scale=self.speed_scale, offset_slope=slope)
+                                  speed_scale=self.tracker_scale, offset_slope=slope)
         self._s_line = tc.s_m
         self._cautious_start(tc.s_m)
         yaw_error = self._yaw_error(tc.s_m)
@@ -818,6 +839,7 @@ class RacelinePlanner:
             # speed scale to 0.92 there, 0.4 m from the line, and left the track)
             self._on_line = False
             self._yaw_ticks = 0
+        self._replan_for_grip(tc.s_m)
         speed = tc.speed_mps
         steering = tc.steering_rad
         if plan is not FREE:
@@ -834,7 +856,7 @@ class RacelinePlanner:
             speed = self._handover.cap(speed, self.settings.dt_s)
         # the line's own speed command: the grip adaptation's scale is a speed held below
         # the line's too (the tracker's steering is the line's at its own speed)
-        line_speed = tc.speed_mps / self.speed_scale
+        line_speed = tc.speed_mps / self.tracker_scale
         if speed < min(line_speed, self._speed_lim[1]) - SLOW_SPEED_MPS:
             # held below the line's speed (behind a car, joining the line, the hand-over's
             # ramp, a grip adaptation): the steering of the line at that speed; the line's
@@ -852,6 +874,66 @@ class RacelinePlanner:
         if on_command is not None:
             on_command(cmd)
         return self._result(cmd, x_m, y_m, yaw_rad, tc.s_m, s_t, e_t, "tracker", t0)
+
+    @property
+    def tracker_scale(self) -> float:
+        """The share of the current ``raceline``'s speeds the tracker drives: the grip
+        adaptation's speed scale over the one its profile was re-planned for."""
+        return self.speed_scale / self.profile_scale
+
+    def _follow(self, raceline: Raceline, profile_scale: float) -> None:
+        """Drive `raceline` (the line or it re-planned for `profile_scale`) from the next
+        tick: a tracker on its plan with the timing acted on, the slower lines' trackers
+        rebuilt when next needed."""
+        self.raceline = raceline
+        self.profile_scale = profile_scale
+        self.tracker = Tracker(raceline.reference, self.tracker.timing, self.tracker.gains,
+                               self.tracker.k_accel, self.tracker.k_brake)
+        self.tracker.reset(self._s_line)
+        self.__dict__.pop("_slow_trackers", None)
+
+    @cached_property
+    def _line_grip_mps2(self) -> float:
+        """What the line asks in its bends at the grip [m/s^2] (``line_grip_mps2``)."""
+        ref = self.built_line.reference
+        return line_grip_mps2(ref.v_mps, ref.kappa_1pm)
+
+    def _replan_for_grip(self, s_line_m: float) -> None:
+        """``[planner.raceline] grip_profile``: once the grip adaptation's speed scale has
+        held ``grip_profile_settle_ticks`` below the one the profile was planned for, the
+        line's speed profile re-planned for the grip it says (``raceline.grip_profile``);
+        not in the cautious out lap (its scale is a start's, not the grip's), nor before the
+        servo's lag is measured (a car's slides then are partly its servo's: re-planned
+        from the first cut, the identified car took the gym car's gentle bends faster with
+        its 0.158 s servo not inverted, 30 spins in the 15 tuning cells against 3). With
+        ``grip_relearn_on_servo``, the first time the lag measured is acted on, the scale
+        (once settled) returns to ``start_speed_scale`` on the line as built: the cuts
+        before came partly from the servo."""
+        o = self.options
+        if self.speed_scale < self._scale_seen:
+            self._scale_quiet = 0
+        else:
+            self._scale_quiet += 1
+        self._scale_seen = self.speed_scale
+        if self._start_phase is not None or self._scale_quiet < o.grip_profile_settle_ticks:
+            return
+        if self._relearn:  # the servo's lag measured since the cuts: from the start's
+            # scale again, on the line as built
+            self._relearn = False
+            if self.speed_scale < o.start_speed_scale:
+                self.speed_scale = self._scale_seen = o.start_speed_scale
+                if self.raceline is not self.built_line:
+                    self._follow(self.built_line, 1.0)
+                self._scale_quiet = 0
+                return
+        if (not o.grip_profile or not self._servo_known
+                or abs(self.speed_scale - self.profile_scale) <= 1e-9):
+            return
+        self._s_line = s_line_m
+        grip = o.grip_profile_lateral_share * self._line_grip_mps2
+        self._follow(grip_raceline(self.built_line, self.speed_scale, self.vehicle,
+                                   o.grip_profile_long_share, grip),
+                     self.speed_scale)
 
     @cached_property
     def drivable_slower(self) -> bool:

@@ -241,8 +241,10 @@ class ReferenceLap:
             lap_time_s=float(dt.sum()),
         )
 
-    def slower(self, share: float, vehicle: DynamicVehicleParams) -> ReferenceLap:
-        """This plan's path at `share` (0, 1] of its speeds: ``from_path`` at ``share v``
+    def slower(self, share: float | np.ndarray, vehicle: DynamicVehicleParams) -> ReferenceLap:
+        """This plan's path at `share` (0, 1] of its speeds (one share, or one per node,
+        (n,): a profile re-planned for less grip, ``raceline.grip_profile``): ``from_path``
+        at ``share v``
         (the steady-state steering, slip and acceleration demand there) plus the plan's
         own dynamic part scaled by ``share ** DYNAMIC_SHARE_EXPONENT``.
 
@@ -256,13 +258,17 @@ class ReferenceLap:
         at ``share ** 4`` on none of five tracks at 0.85, 0.9 or 0.95.
 
         Args:
-            share: the speed share, 0 < share <= 1 (1: this plan).
+            share: the speed share, 0 < share <= 1 (1: this plan), or (n,) one per node.
             vehicle: the car ``from_path`` steers.
         """
-        if not 0.0 < share <= 1.0:
+        shares = np.asarray(share, dtype=float)
+        if shares.ndim not in (0, 1) or (shares.ndim == 1 and shares.shape != self.v_mps.shape):
+            raise ValueError(f"speed share must be one number or one per node ({len(self.s_m)})")
+        if not np.all((shares > 0.0) & (shares <= 1.0)):
             raise ValueError(f"speed share must be in (0, 1], got {share}")
-        if share == 1.0:
+        if np.all(shares == 1.0):
             return self
+        share = shares if shares.ndim == 1 else float(shares)
         slow = ReferenceLap.from_path(self.line, self.kappa_1pm, self.v_mps * share, vehicle)
         steady = ReferenceLap.from_path(self.line, self.kappa_1pm, self.v_mps, vehicle)
         k = share**DYNAMIC_SHARE_EXPONENT
