@@ -369,6 +369,14 @@ class RacelineSettings(Section):
         description="cautious out lap: the speed scale's rise per tick after the hold (0.1 "
         "a second at 20 Hz: at once, it put two known cars off in their out lap) [1]",
     )
+    start_probe_share: float = Field(
+        0.2, ge=0.0, le=5.0,
+        description="cautious out lap: the rise goes at most this share above the grip the "
+        "car has shown, in speed scale (sqrt of the largest lateral acceleration it held on "
+        "its line over what the line's bends at the grip ask); 0: no bound [1]. The "
+        "identified car on the gym car's line rose to 1 past gentle bends and spun in the "
+        "first fast S-bend (gen:1013); 0.1 left two known cars off in their out lap",
+    )
     start_grip_error_m: float = Field(
         0.15, gt=0.0, le=2.0,
         description="cautious out lap: the grip adaptation's grip_error_m while it lasts "

@@ -164,3 +164,25 @@ def test_cuts_before_the_servo_was_measured_are_learnt_afresh_once_settled() -> 
     assert planner.profile_scale == pytest.approx(0.9)  # ... and re-planned there
     planner.reset()
     assert planner.raceline is planner.built_line and not planner._relearn
+
+
+def test_the_cautious_start_rises_no_further_than_the_grip_shown_allows() -> None:
+    """``start_probe_share``: past the hold, the scale rises only to 1.2 times the scale
+    whose lateral acceleration the car has held on its line: on the straight (no grip
+    shown) it stays at the start's, in the bend it steps up to 1.2 x 0.8, then on."""
+    planner = _planner(start_speed_scale=0.8, start_hold_share=0.05, start_rise_per_tick=0.5,
+                       start_probe_share=0.2)
+    assert planner._start_phase == "hold" and planner.speed_scale == 0.8
+    s = 0.0
+    while s < 11.0:  # the first straight
+        planner.step(*_pose_at(planner, s))
+        s += 0.15
+    assert planner._start_phase == "rise" and planner.speed_scale == 0.8
+    scales = []
+    while s < 14.0:  # into the first bend (radius 1.5 m, at the line's grip)
+        planner.step(*_pose_at(planner, s))
+        scales.append(planner.speed_scale)
+        s += 0.15
+    rising = [c for c in scales if c > 0.8]
+    assert rising[0] == pytest.approx(0.96, abs=0.01)  # 1.2 x the 0.8 held
+    assert rising[-1] == 1.0 and planner._start_phase is None

@@ -558,6 +558,7 @@ class RacelinePlanner:
         #: the cautious out lap (``_cautious_start``): "hold", "rise" or None (over)
         self._start_phase: str | None = "hold" if cautious else None
         self._start_travel_m = 0.0  #: the line's length driven since the start [m]
+        self._grip_shown = 0.0  #: the lateral acceleration held on the line [m/s^2]
         self._start_s: float | None = None  #: the line station of the last tick [m]
         #: reached the line since the start, the last recovery or the last manoeuvre
         #: around a car (the grip adaptation judges only then)
@@ -828,6 +829,8 @@ class RacelinePlanner:
         self._s_line = tc.s_m
         self._cautious_start(tc.s_m)
         yaw_error = self._yaw_error(tc.s_m)
+        if self._start_phase is not None and plan is FREE and self._offset == 0.0:
+            self._show_grip(tc.s_m)
         if plan is FREE and (self._join is not None or self._offset == 0.0):
             self._adapt_grip_yaw(yaw_error)
             # judged from the line or a join's path, never beside a car: there the car lags
@@ -968,9 +971,23 @@ class RacelinePlanner:
             if self._start_travel_m >= o.start_hold_share * length:
                 self._start_phase = "rise"
             return
-        self.speed_scale = min(1.0, self.speed_scale + o.start_rise_per_tick)
+        top = 1.0
+        if o.start_probe_share > 0.0:  # no further above the grip shown than the probe
+            top = min(top, (1.0 + o.start_probe_share)
+                      * math.sqrt(self._grip_shown / self._line_grip_mps2))
+        self.speed_scale = max(self.speed_scale,
+                               min(top, self.speed_scale + o.start_rise_per_tick))
         if self.speed_scale >= 1.0:
             self._start_phase = None
+
+    def _show_grip(self, s_line_m: float) -> None:
+        """The lateral acceleration [m/s^2] the car held on its line this tick, as the plan
+        asks it at the tracker's scale, kept as the grip shown (``start_probe_share``)."""
+        if self._on_line and self._yaw_ticks == 0:
+            ref = self.raceline.reference
+            v = self.tracker_scale * float(ref.at("v", s_line_m))
+            shown = v * v * abs(float(ref.at("kappa", s_line_m)))
+            self._grip_shown = max(self._grip_shown, shown)
 
     def _adapt_grip(self, e_line_m: float) -> None:
         """The grip adaptation: a tick with the car's CoG more than ``grip_error_m`` off the
