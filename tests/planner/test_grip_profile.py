@@ -148,7 +148,7 @@ def test_cuts_before_the_servo_was_measured_are_learnt_afresh_once_settled() -> 
     from services.planner.raceline.servo_lag import ServoLagEstimate
 
     planner = _planner(servo_lag_estimate=True, grip_profile_settle_ticks=3,
-                       start_speed_scale=0.9, grip_min_scale=0.7)
+                       start_speed_scale=0.9, grip_min_scale=0.7, grip_relearn_on_servo=True)
     planner.speed_scale = 1.0  # (the cautious start is off in these tests: asked at 1)
     for k in range(10):
         planner.step(*_pose_at(planner, 0.15 * k))
