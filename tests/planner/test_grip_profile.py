@@ -73,13 +73,13 @@ def test_the_profile_rejects_a_bad_grip_and_a_per_node_share_equals_one_number()
     assert np.allclose(one.delta_rad, each.delta_rad) and np.allclose(one.v_mps, each.v_mps)
 
 
-def _planner(**raceline) -> RacelinePlanner:
+def _planner(vehicle=None, **raceline) -> RacelinePlanner:
     options = {"start_speed_scale": 1.0, "grip_error_m": 0.2, "grip_step": 0.05,
                "grip_min_scale": 0.8, "grip_yaw_error_radps": 0.0,
                "servo_lag_estimate": False, **raceline}
     settings = PlannerSettings(method="raceline", raceline=RacelineSettings(**options))
     line = _line()
-    return RacelinePlanner(line.track, settings, raceline=line)
+    return RacelinePlanner(line.track, settings, raceline=line, vehicle=vehicle)
 
 
 def _pose_at(planner: RacelinePlanner, s: float, left_m: float = 0.0):
@@ -114,8 +114,15 @@ def test_the_planner_re_plans_its_profile_once_the_scale_has_settled() -> None:
     assert planner.tracker.plan is planner.built_line.reference
 
 
-def test_without_the_grip_profile_the_whole_line_is_scaled() -> None:
-    planner = _planner(grip_profile=False, grip_profile_settle_ticks=1)
+@pytest.mark.parametrize("case", ["off", "linear tyres"])
+def test_without_the_grip_profile_the_whole_line_is_scaled(case: str) -> None:
+    """Off, or for the gym's unbounded linear tyres (no grip to find), the cuts scale the
+    line as built."""
+    if case == "off":
+        planner = _planner(grip_profile=False, grip_profile_settle_ticks=1)
+    else:
+        linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
+        planner = _planner(vehicle=linear, grip_profile_settle_ticks=1)
     for k in range(10):
         planner.step(*_pose_at(planner, 0.15 * k))
     for k in range(10, 16):

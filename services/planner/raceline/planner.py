@@ -908,7 +908,10 @@ class RacelinePlanner:
         not in the cautious out lap (its scale is a start's, not the grip's), nor before the
         servo's lag is measured (a car's slides then are partly its servo's: re-planned
         from the first cut, the identified car took the gym car's gentle bends faster with
-        its 0.158 s servo not inverted, 30 spins in the 15 tuning cells against 3). With
+        its 0.158 s servo not inverted, 30 spins in the 15 tuning cells against 3); nor
+        for the gym's unbounded ``linear`` tyres (no grip to find: re-planned, gen-20's
+        line, tighter than the lock turns the car, drove the car to 4.6 m/s, 10 % over the
+        cap, 16-22 times a run). With
         ``grip_relearn_on_servo``, the first time the lag measured is acted on, the scale
         (once settled) returns to ``start_speed_scale`` on the line as built: the cuts
         before came partly from the servo."""
@@ -930,6 +933,7 @@ class RacelinePlanner:
                 self._scale_quiet = 0
                 return
         if (not o.grip_profile or not self._servo_known
+                or self.vehicle.tyre_model == "linear"
                 or abs(self.speed_scale - self.profile_scale) <= 1e-9):
             return
         self._s_line = s_line_m
