@@ -3,8 +3,6 @@ grip_profile``) and the raceline planner re-planning once its grip adaptation ha
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -17,6 +15,7 @@ from services.planner.raceline.planner import Raceline, RacelinePlanner, speed_p
 from services.planner.raceline.tracker import ReferenceLap
 from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM
+from tests.planner.test_raceline_margins import _rear_axle_at
 from tests.planner.test_tracker import stadium
 
 CAP_MPS = 4.18
@@ -82,32 +81,23 @@ def _planner(vehicle=None, **raceline) -> RacelinePlanner:
     return RacelinePlanner(line.track, settings, raceline=line, vehicle=vehicle)
 
 
-def _pose_at(planner: RacelinePlanner, s: float, left_m: float = 0.0):
-    rl = planner.built_line
-    cx, cy = rl.track.point_at(s)
-    yaw = rl.reference.at("yaw", s)
-    cx, cy = cx - left_m * math.sin(yaw), cy + left_m * math.cos(yaw)
-    lr = planner.vehicle.lr_m
-    return cx - lr * math.cos(yaw), cy - lr * math.sin(yaw), yaw
-
-
 def test_the_planner_re_plans_its_profile_once_the_scale_has_settled() -> None:
     planner = _planner(grip_profile_settle_ticks=5)
     step = 0.15
     for k in range(10):  # on the line: the plan
-        planner.step(*_pose_at(planner, step * k))
+        planner.step(*_rear_axle_at(planner, step * k))
     assert planner.raceline is planner.built_line and planner.profile_scale == 1.0
     for k in range(10, 16):  # a slide: cut tick by tick, the line scaled meanwhile
-        planner.step(*_pose_at(planner, step * k, 0.3))
+        planner.step(*_rear_axle_at(planner, step * k, 0.3))
         assert planner.raceline is planner.built_line
     assert planner.speed_scale == pytest.approx(0.8)
     for k in range(16, 32):  # back on the line: re-planned after the settle ticks
-        planner.step(*_pose_at(planner, step * k))
+        planner.step(*_rear_axle_at(planner, step * k))
     assert planner.profile_scale == planner.speed_scale and planner.tracker_scale == 1.0
     assert planner.raceline is not planner.built_line
     assert planner.raceline.speed_mps.max() == pytest.approx(CAP_MPS, rel=1e-6)
     # on the straight the car is asked for the line's speed, not 0.8 of it
-    cmd = planner.step(*_pose_at(planner, 6.0)).command
+    cmd = planner.step(*_rear_axle_at(planner, 6.0)).command
     assert cmd.speed_mps > 0.95 * CAP_MPS
     planner.reset()  # a new run: the line as built, for the told grip
     assert planner.raceline is planner.built_line and planner.profile_scale == 1.0
@@ -124,13 +114,13 @@ def test_without_the_grip_profile_the_whole_line_is_scaled(case: str) -> None:
         linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
         planner = _planner(vehicle=linear, grip_profile_settle_ticks=1)
     for k in range(10):
-        planner.step(*_pose_at(planner, 0.15 * k))
+        planner.step(*_rear_axle_at(planner, 0.15 * k))
     for k in range(10, 16):
-        planner.step(*_pose_at(planner, 0.15 * k, 0.3))
+        planner.step(*_rear_axle_at(planner, 0.15 * k, 0.3))
     for k in range(16, 40):
-        planner.step(*_pose_at(planner, 0.15 * k))
+        planner.step(*_rear_axle_at(planner, 0.15 * k))
     assert planner.raceline is planner.built_line and planner.speed_scale == pytest.approx(0.8)
-    cmd = planner.step(*_pose_at(planner, 6.0)).command
+    cmd = planner.step(*_rear_axle_at(planner, 6.0)).command
     assert cmd.speed_mps < 0.85 * CAP_MPS
 
 
@@ -139,11 +129,11 @@ def test_no_profile_is_re_planned_before_the_servo_s_lag_is_measured() -> None:
     the line as built."""
     planner = _planner(servo_lag_estimate=True, grip_profile_settle_ticks=1)
     for k in range(10):
-        planner.step(*_pose_at(planner, 0.15 * k))
+        planner.step(*_rear_axle_at(planner, 0.15 * k))
     for k in range(10, 16):
-        planner.step(*_pose_at(planner, 0.15 * k, 0.3))
+        planner.step(*_rear_axle_at(planner, 0.15 * k, 0.3))
     for k in range(16, 30):
-        planner.step(*_pose_at(planner, 0.15 * k))
+        planner.step(*_rear_axle_at(planner, 0.15 * k))
     assert planner.servo_lag.estimate() is None and planner.speed_scale == pytest.approx(0.8)
     assert planner.raceline is planner.built_line and planner.profile_scale == 1.0
 
@@ -158,14 +148,14 @@ def test_cuts_before_the_servo_was_measured_are_learnt_afresh_once_settled() -> 
                        start_speed_scale=0.9, grip_min_scale=0.7, grip_relearn_on_servo=True)
     planner.speed_scale = 1.0  # (the cautious start is off in these tests: asked at 1)
     for k in range(10):
-        planner.step(*_pose_at(planner, 0.15 * k))
+        planner.step(*_rear_axle_at(planner, 0.15 * k))
     for k in range(10, 20):  # a slide with the told servo: down to the floor
-        planner.step(*_pose_at(planner, 0.15 * k, 0.3))
+        planner.step(*_rear_axle_at(planner, 0.15 * k, 0.3))
     assert planner.speed_scale == pytest.approx(0.7)
     slow = ServoLagEstimate(0.2, 1.0, 10.0, 3.0, (0.0,))
     planner.servo_lag.estimate = lambda: slow  # the lag measured from here on
     for k in range(20, 40):
-        planner.step(*_pose_at(planner, 0.15 * k))
+        planner.step(*_rear_axle_at(planner, 0.15 * k))
     assert planner.tracker.timing.servo_time_constant_s > 0.1  # inverted
     assert planner.speed_scale == pytest.approx(0.9)  # learnt afresh from the start's
     assert planner.profile_scale == pytest.approx(0.9)  # ... and re-planned there
@@ -182,12 +172,12 @@ def test_the_cautious_start_rises_no_further_than_the_grip_shown_allows() -> Non
     assert planner._start_phase == "hold" and planner.speed_scale == 0.8
     s = 0.0
     while s < 11.0:  # the first straight
-        planner.step(*_pose_at(planner, s))
+        planner.step(*_rear_axle_at(planner, s))
         s += 0.15
     assert planner._start_phase == "rise" and planner.speed_scale == 0.8
     scales = []
     while s < 14.0:  # into the first bend (radius 1.5 m, at the line's grip)
-        planner.step(*_pose_at(planner, s))
+        planner.step(*_rear_axle_at(planner, s))
         scales.append(planner.speed_scale)
         s += 0.15
     rising = [c for c in scales if c > 0.8]
