@@ -614,8 +614,8 @@ class RacelinePlanner:
             return
         measured = self.tracker.timing != self._told_timing  # a measured lag acted on
         self.servo_lag_s = tau
-        # the cuts so far were (partly) the servo's: once the slide has settled, the grip
-        # is learnt afresh (``_replan_for_grip``)
+        # the cuts so far were (partly) the servo's: with ``grip_relearn_on_servo``, once
+        # the slide has settled, the grip is learnt afresh (``_replan_for_grip``)
         self._relearn = self._relearn or (o.grip_relearn_on_servo and not measured)
         told = self._told_timing
         pure = pure_servo_delay_s(self.settings)
@@ -911,10 +911,10 @@ class RacelinePlanner:
         its 0.158 s servo not inverted, 30 spins in the 15 tuning cells against 3); nor
         for the gym's unbounded ``linear`` tyres (no grip to find: re-planned, gen-20's
         line, tighter than the lock turns the car, drove the car to 4.6 m/s, 10 % over the
-        cap, 16-22 times a run). With
-        ``grip_relearn_on_servo``, the first time the lag measured is acted on, the scale
-        (once settled) returns to ``start_speed_scale`` on the line as built: the cuts
-        before came partly from the servo."""
+        cap, 16-22 times a run). With ``grip_relearn_on_servo`` (off by default), the
+        first time the lag measured is acted on, the scale (once settled) returns to
+        ``start_speed_scale`` on the line as built: the cuts before came partly from the
+        servo."""
         o = self.options
         if self.speed_scale < self._scale_seen:
             self._scale_quiet = 0
