@@ -104,6 +104,13 @@ def test_the_planner_re_plans_its_profile_once_the_scale_has_settled() -> None:
     assert planner.tracker.plan is planner.built_line.reference
 
 
+def _slide_then_line(planner: RacelinePlanner, ticks: int) -> None:
+    """10 ticks on the line, 6 ticks 0.3 m off it (a slide), then on it up to `ticks`, every
+    0.15 m."""
+    for k in range(ticks):
+        planner.step(*_rear_axle_at(planner, 0.15 * k, 0.3 if 10 <= k < 16 else 0.0))
+
+
 @pytest.mark.parametrize("case", ["off", "linear tyres"])
 def test_without_the_grip_profile_the_whole_line_is_scaled(case: str) -> None:
     """Off, or for the gym's unbounded linear tyres (no grip to find), the cuts scale the
@@ -113,12 +120,7 @@ def test_without_the_grip_profile_the_whole_line_is_scaled(case: str) -> None:
     else:
         linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
         planner = _planner(vehicle=linear, grip_profile_settle_ticks=1)
-    for k in range(10):
-        planner.step(*_rear_axle_at(planner, 0.15 * k))
-    for k in range(10, 16):
-        planner.step(*_rear_axle_at(planner, 0.15 * k, 0.3))
-    for k in range(16, 40):
-        planner.step(*_rear_axle_at(planner, 0.15 * k))
+    _slide_then_line(planner, 40)
     assert planner.raceline is planner.built_line and planner.speed_scale == pytest.approx(0.8)
     cmd = planner.step(*_rear_axle_at(planner, 6.0)).command
     assert cmd.speed_mps < 0.85 * CAP_MPS
@@ -128,12 +130,7 @@ def test_no_profile_is_re_planned_before_the_servo_s_lag_is_measured() -> None:
     """The estimator on and no estimate yet (synthetic poses on the line): the cuts scale
     the line as built."""
     planner = _planner(servo_lag_estimate=True, grip_profile_settle_ticks=1)
-    for k in range(10):
-        planner.step(*_rear_axle_at(planner, 0.15 * k))
-    for k in range(10, 16):
-        planner.step(*_rear_axle_at(planner, 0.15 * k, 0.3))
-    for k in range(16, 30):
-        planner.step(*_rear_axle_at(planner, 0.15 * k))
+    _slide_then_line(planner, 30)
     assert planner.servo_lag.estimate() is None and planner.speed_scale == pytest.approx(0.8)
     assert planner.raceline is planner.built_line and planner.profile_scale == 1.0
 
