@@ -7,11 +7,17 @@ import numpy as np
 import pytest
 
 from services.planner.raceline.grip_profile import (
+    GripReplan,
     grip_raceline,
     grip_speed_profile,
     line_grip_mps2,
 )
-from services.planner.raceline.planner import Raceline, RacelinePlanner, speed_profile
+from services.planner.raceline.planner import (
+    FEED_FORWARD_SCALES,
+    Raceline,
+    RacelinePlanner,
+    speed_profile,
+)
 from services.planner.raceline.tracker import ReferenceLap
 from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM
@@ -72,6 +78,42 @@ def test_the_profile_rejects_a_bad_grip_and_a_per_node_share_equals_one_number()
     assert np.allclose(one.delta_rad, each.delta_rad) and np.allclose(one.v_mps, each.v_mps)
 
 
+def test_the_re_plan_done_a_slice_per_tick_is_the_re_plan_done_at_once() -> None:
+    """``GripReplan``: the same line and the same slower plans as made at once, each tick
+    within its work (one slice beyond it only when a single slice is larger)."""
+    line = _line(straight=20.0)
+    ref = line.reference
+    n = len(ref.v_mps)
+    shares = FEED_FORWARD_SCALES[:-1]
+    at_once = grip_raceline(line, 0.8, F1TENTH_GYM, 0.7)
+    work = 500
+    job = GripReplan(line, 0.8, F1TENTH_GYM, 0.7, None, shares)
+    ticks, before = 0, 0
+    while not job.advance(work):
+        ticks += 1
+        step = job.work_done - before
+        before = job.work_done
+        assert 0 < step <= work  # every slice (at most PLAN_CHUNK nodes) within it
+        assert ticks < 200
+    assert job.ticks == ticks + 1 and job.ticks >= job.work_done / work
+    assert job.work_done >= 4 * n + 6 * n  # the passes and six plans over the nodes
+    done = job.result
+    assert done.scale == 0.8 and job.advance(work) and job.result is done
+    for name in ("v_mps", "delta_rad", "yaw_rad", "a_mps2", "t_s"):
+        assert np.allclose(getattr(done.raceline.reference, name),
+                           getattr(at_once.reference, name), rtol=1e-12, atol=1e-12)
+    assert np.array_equal(done.raceline.speed_mps, at_once.speed_mps)  # the passes alike
+    assert len(done.slow_plans) == len(shares)
+    for k, plan in zip(shares, done.slow_plans, strict=True):
+        alone = at_once.reference.slower(k, F1TENTH_GYM)
+        assert np.allclose(plan.delta_rad, alone.delta_rad, rtol=1e-12, atol=1e-12)
+        assert np.array_equal(plan.v_mps, alone.v_mps)
+    with pytest.raises(ValueError):
+        GripReplan(line, 0.8, F1TENTH_GYM, 0.7, None).advance(0)
+    with pytest.raises(ValueError):  # the scale is checked as the job starts
+        GripReplan(line, 1.3, F1TENTH_GYM, 0.7, None).advance(work)
+
+
 def _planner(vehicle=None, **raceline) -> RacelinePlanner:
     options = {"start_speed_scale": 1.0, "grip_error_m": 0.2, "grip_step": 0.05,
                "grip_min_scale": 0.8, "grip_yaw_error_radps": 0.0,
@@ -102,6 +144,35 @@ def test_the_planner_re_plans_its_profile_once_the_scale_has_settled() -> None:
     planner.reset()  # a new run: the line as built, for the told grip
     assert planner.raceline is planner.built_line and planner.profile_scale == 1.0
     assert planner.tracker.plan is planner.built_line.reference
+
+
+def test_the_planner_drives_the_line_it_has_until_the_re_plan_is_done() -> None:
+    """A small work per tick: the re-plan takes several ticks; meanwhile the car drives the
+    line as built at the scale found, then the re-planned one with its slower trackers on
+    the new plan's slower plans; a reset drops a re-plan under way."""
+    planner = _planner(grip_profile_settle_ticks=2, grip_replan_work_per_tick=300)
+    n = len(planner.built_line.speed_mps)
+    _slide_then_line(planner, 18)  # settled at 17: the job started
+    job = planner._grip_job
+    assert job is not None and planner.raceline is planner.built_line
+    k = 18
+    while planner._grip_job is not None:
+        planner.step(*_rear_axle_at(planner, 0.15 * k))
+        k += 1
+        assert k < 200
+        if planner._grip_job is not None:  # under way: the line as built, scaled
+            assert planner.raceline is planner.built_line and planner.tracker_scale < 1.0
+    assert job.ticks > 10 * n / 300  # the passes and six plans over the nodes
+    assert planner.raceline is job.result.raceline and planner.profile_scale == 0.8
+    assert [t.plan for t in planner._slow_trackers] == list(job.result.slow_plans)
+    # a slide again, a re-plan started, then a reset: the line as built, nothing under way
+    for j in range(k, k + 6):
+        planner.step(*_rear_axle_at(planner, 0.15 * j, 0.3))
+    for j in range(k + 6, k + 9):
+        planner.step(*_rear_axle_at(planner, 0.15 * j))
+    planner.reset()
+    assert planner._grip_job is None and planner.raceline is planner.built_line
+    assert [t.plan for t in planner._slow_trackers] == list(planner._built_slow_plans)
 
 
 def _slide_then_line(planner: RacelinePlanner, ticks: int) -> None:

@@ -59,7 +59,7 @@ from services.planner.mintime.requests import (
 )
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
 from services.planner.opponents import OpponentEstimate, predict_on_line
-from services.planner.raceline.grip_profile import grip_raceline, line_grip_mps2
+from services.planner.raceline.grip_profile import GripReplan, line_grip_mps2
 from services.planner.raceline.join import MAX_SLOPE as MAX_JOIN_SLOPE
 from services.planner.raceline.join import LineJoin
 from services.planner.raceline.overtake import FREE, OvertakeParams, OvertakePlan, plan_around
@@ -493,6 +493,19 @@ class RacelinePlanner:
         #: the line as built; ``raceline`` is it, or it re-planned for the grip found
         #: (``_replan_for_grip``) until the next ``reset``
         self.built_line = self.raceline
+        ref = self.built_line.reference
+        #: the built line's path at its own speeds (``ReferenceLap.from_path``): each
+        #: re-plan's plans start from it
+        self._built_steady = ReferenceLap.from_path(ref.line, ref.kappa_1pm, ref.v_mps,
+                                                    self.vehicle)
+        #: the built line's plan at each ``FEED_FORWARD_SCALES`` but the last
+        #: (``_slow_trackers``), made here, not in the first tick that needs them
+        self._built_slow_plans = tuple(ref.slower(k, self.vehicle, steady=self._built_steady)
+                                       for k in FEED_FORWARD_SCALES[:-1])
+        #: the current ``raceline``'s slower plans
+        self._slow_plans = self._built_slow_plans
+        #: the grip re-plan under way (``_replan_for_grip``), a slice per tick
+        self._grip_job: GripReplan | None = None
         self.overtake = overtake or OvertakeParams()
         self.opponents: list[OpponentEstimate] = []
         self.plan: OvertakePlan = FREE  #: the last tick's plan around the opponents
@@ -510,6 +523,7 @@ class RacelinePlanner:
                 settings.dt_s, pure_servo_delay_s(settings),
                 self.vehicle.lf_m + self.vehicle.lr_m,
                 max_lateral_mps2=linear_lateral_mps2(self.vehicle)))
+            _ = self._yaw_lags  # made here (1-2 ms), not in the tick of the first estimate
         curvature = curvature or CurvatureSettings()
         self.profile = track_profile(track, curvature)
         self._timer = timer
@@ -537,7 +551,8 @@ class RacelinePlanner:
         #: (the cautious out lap's start scale on a line the car can drive slower)
         o = self.options
         if self.raceline is not self.built_line:  # the line as built, for the told grip
-            self._follow(self.built_line, 1.0)
+            self._follow(self.built_line, 1.0, self._built_slow_plans)
+        self._grip_job = None
         #: the speed scale the current ``raceline``'s profile was re-planned for (1: the
         #: line's own); the tracker drives it at ``speed_scale / profile_scale``
         self.profile_scale = 1.0
@@ -594,7 +609,7 @@ class RacelinePlanner:
     def _retime(self, timing: TrackerTiming) -> None:
         """The tracker (and the slower lines' ones) acting on `timing`."""
         self.tracker.retime(timing)
-        self.__dict__.pop("_slow_trackers", None)  # rebuilt with it when next needed
+        self.__dict__.pop("_slow_trackers", None)  # rebuilt on their plans when next needed
 
     def _measure_servo(self, x_m: float, y_m: float, yaw_rad: float) -> None:
         """Feed the servo-lag estimator this tick's pose; when the lag it measures (less the
@@ -645,16 +660,11 @@ class RacelinePlanner:
         """A tracker per ``FEED_FORWARD_SCALES`` (but the last) on the line at that share of
         its speed profile (``ReferenceLap.slower``: the steady-state steering and slip at
         those speeds with the line's dynamic part faded in), for a car held below the
-        line's speed."""
-        ref = self.raceline.reference
+        line's speed. Their plans are made beside the line's (``_slow_plans``: at
+        construction, in a grip re-plan's job); a tracker on one is cheap."""
         return [
-            Tracker.for_vehicle(
-                ref.slower(k, self.vehicle),
-                self.tracker.timing,
-                self.tracker.gains,
-                self.vehicle,
-            )
-            for k in FEED_FORWARD_SCALES[:-1]
+            Tracker.for_vehicle(plan, self.tracker.timing, self.tracker.gains, self.vehicle)
+            for plan in self._slow_plans
         ]
 
     def _slow_steering(
@@ -884,12 +894,16 @@ class RacelinePlanner:
         adaptation's speed scale over the one its profile was re-planned for."""
         return self.speed_scale / self.profile_scale
 
-    def _follow(self, raceline: Raceline, profile_scale: float) -> None:
+    def _follow(
+        self, raceline: Raceline, profile_scale: float, slow_plans: tuple[ReferenceLap, ...]
+    ) -> None:
         """Drive `raceline` (the line or it re-planned for `profile_scale`) from the next
         tick: a tracker on its plan with the timing acted on, the slower lines' trackers
-        rebuilt when next needed."""
+        on `slow_plans` (its plan at ``FEED_FORWARD_SCALES`` but the last) when next
+        needed."""
         self.raceline = raceline
         self.profile_scale = profile_scale
+        self._slow_plans = slow_plans
         self.tracker = Tracker(raceline.reference, self.tracker.timing, self.tracker.gains,
                                self.tracker.k_accel, self.tracker.k_brake)
         self.tracker.reset(self._s_line)
@@ -914,13 +928,21 @@ class RacelinePlanner:
         cap, 16-22 times a run). With ``grip_relearn_on_servo`` (off by default), the
         first time the lag measured is acted on, the scale (once settled) returns to
         ``start_speed_scale`` on the line as built: the cuts before came partly from the
-        servo."""
+        servo.
+
+        The re-plan is a job (``GripReplan``) done ``grip_replan_work_per_tick`` node steps
+        per tick; the car drives the line it has at ``tracker_scale`` until the job hands
+        over the new one (the scale cut meanwhile then drives it at ``speed_scale /
+        profile_scale``, and a re-plan for that scale follows once it settles)."""
         o = self.options
         if self.speed_scale < self._scale_seen:
             self._scale_quiet = 0
         else:
             self._scale_quiet += 1
         self._scale_seen = self.speed_scale
+        if self._grip_job is not None:  # a re-plan under way: its next slices
+            self._advance_grip_job(s_line_m)
+            return
         if self._start_phase is not None or self._scale_quiet < o.grip_profile_settle_ticks:
             return
         if self._relearn:  # the servo's lag measured since the cuts: from the start's
@@ -929,18 +951,30 @@ class RacelinePlanner:
             if self.speed_scale < o.start_speed_scale:
                 self.speed_scale = self._scale_seen = o.start_speed_scale
                 if self.raceline is not self.built_line:
-                    self._follow(self.built_line, 1.0)
+                    self._follow(self.built_line, 1.0, self._built_slow_plans)
                 self._scale_quiet = 0
                 return
         if (not o.grip_profile or not self._servo_known
                 or self.vehicle.tyre_model == "linear"
                 or abs(self.speed_scale - self.profile_scale) <= 1e-9):
             return
-        self._s_line = s_line_m
         grip = o.grip_profile_lateral_share * self._line_grip_mps2
-        self._follow(grip_raceline(self.built_line, self.speed_scale, self.vehicle,
-                                   o.grip_profile_long_share, grip),
-                     self.speed_scale)
+        self._grip_job = GripReplan(self.built_line, self.speed_scale, self.vehicle,
+                                    o.grip_profile_long_share, grip,
+                                    FEED_FORWARD_SCALES[:-1], self._built_steady)
+        self._advance_grip_job(s_line_m)  # its first slices in this tick
+
+    def _advance_grip_job(self, s_line_m: float) -> None:
+        """The grip re-plan's next slices (``grip_replan_work_per_tick`` node steps); the
+        car on the re-planned line from the next tick once it is done."""
+        assert self._grip_job is not None
+        job = self._grip_job
+        if job.advance(self.options.grip_replan_work_per_tick):
+            done = job.result
+            assert done is not None
+            self._grip_job = None
+            self._s_line = s_line_m
+            self._follow(done.raceline, done.scale, done.slow_plans)
 
     @cached_property
     def drivable_slower(self) -> bool:

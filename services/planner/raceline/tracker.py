@@ -71,6 +71,7 @@ import numpy as np
 
 from services.planner.mintime.model import DELTA
 from services.planner.mintime.ocp import MinTimeLap
+from services.planner.raceline.jobs import Job, run_job
 from shared.angles import wrap_angle
 from shared.config.vehicle import DynamicVehicleParams
 from shared.track import Track
@@ -219,14 +220,40 @@ class ReferenceLap:
             v_mps: (n,) planned speed at the nodes [m/s], positive.
             vehicle: the car (wheelbase, l_r, cornering stiffnesses, mu).
         """
+        return run_job(cls.from_path_job(line, kappa_1pm, v_mps, vehicle))
+
+    @classmethod
+    def from_path_job(
+        cls,
+        line: Track,
+        kappa_1pm: np.ndarray,
+        v_mps: np.ndarray,
+        vehicle: DynamicVehicleParams,
+        chunk: int | None = None,
+    ) -> Job[ReferenceLap]:
+        """``from_path`` as a job (``raceline.jobs``; arguments as there): the steady-state
+        steering `chunk` nodes a slice (None: all at once), the set-up and the closing
+        sums a slice of n / 4 each."""
         v = np.asarray(v_mps, dtype=float)
         kappa = np.asarray(kappa_1pm, dtype=float)
         if np.any(v <= 0.0):
             raise ValueError("planned speeds must be positive")
+        n = len(v)
+        yield max(n // 4, 1)
         seg = np.hypot(*(np.roll(line.xy, -1, axis=0) - line.xy).T)
         v_dot = (np.roll(v, -1) ** 2 - v**2) / (2.0 * seg)
         dt = 2.0 * seg / (v + np.roll(v, -1))
-        delta, beta, accel = steady_state_steering(kappa, v, v_dot, vehicle)
+        if chunk is None or chunk >= n:
+            yield n
+            delta, beta, accel = steady_state_steering(kappa, v, v_dot, vehicle)
+        else:
+            delta, beta, accel = np.empty(n), np.empty(n), np.empty(n)
+            for start in range(0, n, chunk):
+                part = slice(start, min(start + chunk, n))
+                yield part.stop - start
+                delta[part], beta[part], accel[part] = steady_state_steering(
+                    kappa[part], v[part], v_dot[part], vehicle)
+        yield max(n // 4, 1)
         tangent = line.tangent_unit()
         course = np.unwrap(np.arctan2(tangent[:, 1], tangent[:, 0]))
         return cls(
@@ -241,7 +268,12 @@ class ReferenceLap:
             lap_time_s=float(dt.sum()),
         )
 
-    def slower(self, share: float | np.ndarray, vehicle: DynamicVehicleParams) -> ReferenceLap:
+    def slower(
+        self,
+        share: float | np.ndarray,
+        vehicle: DynamicVehicleParams,
+        steady: ReferenceLap | None = None,
+    ) -> ReferenceLap:
         """This plan's path at `share` (0, 1] of its speeds (one share, or one per node,
         (n,): a profile re-planned for less grip, ``raceline.grip_profile``): ``from_path``
         at ``share v``
@@ -260,7 +292,22 @@ class ReferenceLap:
         Args:
             share: the speed share, 0 < share <= 1 (1: this plan), or (n,) one per node.
             vehicle: the car ``from_path`` steers.
+            steady: ``from_path`` of this plan's path at its own speeds for `vehicle`, when
+                the caller has it (None: made here; ``grip_profile.GripReplan`` reuses one
+                across the slower plans it makes).
         """
+        return run_job(self.slower_job(share, vehicle, steady))
+
+    def slower_job(
+        self,
+        share: float | np.ndarray,
+        vehicle: DynamicVehicleParams,
+        steady: ReferenceLap | None = None,
+        chunk: int | None = None,
+    ) -> Job[ReferenceLap]:
+        """``slower`` as a job (``raceline.jobs``; arguments as there, `chunk` as
+        ``from_path_job``'s): its ``from_path`` plans' slices, the dynamic part a slice of
+        n / 4."""
         shares = np.asarray(share, dtype=float)
         if shares.ndim not in (0, 1) or (shares.ndim == 1 and shares.shape != self.v_mps.shape):
             raise ValueError(f"speed share must be one number or one per node ({len(self.s_m)})")
@@ -269,8 +316,12 @@ class ReferenceLap:
         if np.all(shares == 1.0):
             return self
         share = shares if shares.ndim == 1 else float(shares)
-        slow = ReferenceLap.from_path(self.line, self.kappa_1pm, self.v_mps * share, vehicle)
-        steady = ReferenceLap.from_path(self.line, self.kappa_1pm, self.v_mps, vehicle)
+        slow = yield from ReferenceLap.from_path_job(self.line, self.kappa_1pm,
+                                                     self.v_mps * share, vehicle, chunk)
+        if steady is None:
+            steady = yield from ReferenceLap.from_path_job(self.line, self.kappa_1pm,
+                                                           self.v_mps, vehicle, chunk)
+        yield max(len(self.s_m) // 4, 1)
         k = share**DYNAMIC_SHARE_EXPONENT
         yaw_dyn = np.asarray(wrap_angle(self.yaw_rad - steady.yaw_rad))
         return replace(
