@@ -312,6 +312,7 @@ def method_record(run: MethodRun, entry: dict[str, Any], peak_rad: float) -> dic
         "max_speed_mps": entry.get("max_speed_mps"),
         "solve_ms_median": solve["median"],
         "solve_ms_p99": solve["p99"],
+        "solve_ms_max": solve["max"],
         "solver_failures": run.solver_failures,
         "aborted": run.extra.get("aborted", ""),
         "errors": list(entry.get("errors", [])),
@@ -526,16 +527,17 @@ def method_cell_text(rec: dict[str, Any] | None) -> str:
     if rec.get("error"):
         return f"{'error':>6} {rec['error'][:METHOD_WIDTH - 7]:<{METHOD_WIDTH - 7}}"
     laps = f"{rec['laps_completed']}/{rec['laps_requested']}"
-    solve = f"{_fmt(rec['solve_ms_median'], '.1f')}/{_fmt(rec['solve_ms_p99'], '.1f')}"
+    solve = (f"{_fmt(rec['solve_ms_median'], '.1f')}/{_fmt(rec['solve_ms_p99'], '.1f')}/"
+             f"{_fmt(rec.get('solve_ms_max'), '.1f')}")
     return (f"{_fmt(rec['ratio'], '6.3f', '     -')} {laps:>4} {rec['off_track']:>3} "
             f"{rec['recoveries']:>3} {rec['spins']:>3} "
             f"{_fmt(rec.get('max_slip_over_peak'), '5.2f', '    -')} "
             f"{_fmt(rec['below_limit_laps'], '>3')} "
-            f"{_fmt(rec['over_cap_events'], '>3')} {solve:>9} {'ok' if rec['clean'] else 'x':>2}")
+            f"{_fmt(rec['over_cap_events'], '>3')} {solve:>14} {'ok' if rec['clean'] else 'x':>2}")
 
 
 METHOD_HEADER = (f"{'ratio':>6} {'laps':>4} {'off':>3} {'rec':>3} {'spn':>3} {'slip':>5} "
-                 f"{'<lm':>3} {'>cp':>3} {'solve ms':>9} {'cl':>2}")
+                 f"{'<lm':>3} {'>cp':>3} {'solve ms':>14} {'cl':>2}")
 METHOD_WIDTH = len(METHOD_HEADER)
 
 
@@ -557,7 +559,7 @@ def format_table(cells: list[dict[str, Any]], methods: Iterable[str]) -> str:
         f"(|rear slip| beyond {SPIN_SLIP_FACTOR:g} x the tyres' peak > "
         f"{SPIN_MIN_DURATION_S:g} s); slip = the largest "
         "|rear slip| over that peak; <lm = laps below "
-        "the limit; >cp = excursions over the cap; solve = median/p99 [ms] (wall time of "
+        "the limit; >cp = excursions over the cap; solve = median/p99/max [ms] (wall time of "
         "each solve beside the other workers: it depends on the machine's load, the laps do "
         "not: the bench's compute delay is fixed); cl = clean"
     )
@@ -585,6 +587,7 @@ def summarise(cells: list[dict[str, Any]], method: str) -> dict[str, Any]:
         return None if w is None else w[1]
 
     p99 = [r["solve_ms_p99"] for _, r in recs if r.get("solve_ms_p99") is not None]
+    slowest = [r["solve_ms_max"] for _, r in recs if r.get("solve_ms_max") is not None]
     return {
         "cells": len(recs),
         "clean": sum(bool(r.get("clean")) for _, r in recs),
@@ -603,6 +606,7 @@ def summarise(cells: list[dict[str, Any]], method: str) -> dict[str, Any]:
                           for _, r in recs),
         "errors": sum(bool(r.get("error")) for _, r in recs),
         "worst_solve_ms_p99": max(p99) if p99 else None,
+        "worst_solve_ms_max": max(slowest) if slowest else None,
     }
 
 
@@ -616,7 +620,8 @@ def summary_line(method: str, s: dict[str, Any]) -> str:
         + ("" if mismatch is None else f", mismatch {mismatch:.2f}")
         + f", off-track {s['off_track']}, recoveries {s['recoveries']}, spins {s['spins']}, "
         f"below-limit {s['below_limit_laps']}, over-cap {s['over_cap_events']}, unfinished "
-        f"{s['unfinished']}, solve p99 max {_fmt(s['worst_solve_ms_p99'], '.2f')} ms"
+        f"{s['unfinished']}, solve p99 max {_fmt(s['worst_solve_ms_p99'], '.2f')} ms, slowest "
+        f"tick {_fmt(s.get('worst_solve_ms_max'), '.1f')} ms"
     )
 
 

@@ -164,19 +164,19 @@ def test_the_summary_counts_and_worst_ratios() -> None:
         _cell("a", "identified-on-default", "truth",
               **{m: _rec(1.30, False, laps_completed=1, recoveries=2)}),
         _cell("b", "default", "truth", **{m: _rec(None, False, laps_completed=0,
-                                                  solve_ms_p99=2.5)}),
+                                                  solve_ms_p99=2.5, solve_ms_max=3.25)}),
     ]
     s = rb.summarise(cells, m)
     assert s["cells"] == 5 and s["clean"] == 2
     assert s["worst_ratio"] == {"truth": 1.01, "ekf": 1.04, "lidar": 1.07}
     assert s["worst_ratio_mismatch"] == 1.30
     assert (s["off_track"], s["spins"], s["recoveries"], s["unfinished"]) == (3, 1, 2, 2)
-    assert s["worst_solve_ms_p99"] == 2.5
+    assert s["worst_solve_ms_p99"] == 2.5 and s["worst_solve_ms_max"] == 3.25
     line = rb.summary_line(m, s)
     assert line == (
         f"robustness {m}: 5 cells, clean 2/5, worst ratio (truth/ekf/lidar) 1.01/1.04/1.07, "
         "mismatch 1.30, off-track 3, recoveries 2, spins 1, below-limit 0, over-cap 0, "
-        "unfinished 2, solve p99 max 2.50 ms")
+        "unfinished 2, solve p99 max 2.50 ms, slowest tick 3.2 ms")
     table = rb.format_table(cells, [m, RACELINE]).splitlines()
     assert len(table) == 3 + len(cells) + 1  # two header lines, a rule, the rows, the legend
     assert all(len(row) == len(table[1]) for row in table[3:-1])
@@ -302,7 +302,8 @@ def test_a_tiny_matrix_races_and_reports(tmp_path: Path, capsys) -> None:
     assert re.fullmatch(
         rf"robustness {RACELINE}: 1 cells, clean [01]/1, worst ratio \(truth/ekf/lidar\) "
         r"\d\.\d\d/-/-, off-track \d+, recoveries \d+, spins \d+, below-limit \d+, "
-        r"over-cap \d+, unfinished [01], solve p99 max \d+\.\d\d ms", summary), summary
+        r"over-cap \d+, unfinished [01], solve p99 max \d+\.\d\d ms, slowest tick \d+\.\d ms",
+        summary), summary
     assert doc["summary"][RACELINE]["cells"] == 1
 
 
