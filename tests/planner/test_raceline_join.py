@@ -87,6 +87,37 @@ def test_on_a_straight_the_path_leaves_parallel_and_meets_the_line_tangentially(
     assert join.slope(mid) == pytest.approx(STEEPEST * 0.3 / join.length_m, rel=0.02)
 
 
+def _arc(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A circle of radius 5 m (left turn): points and right normals."""
+    s = np.atleast_1d(s)
+    h = s / 5.0
+    pts = np.column_stack([5.0 * np.sin(h), 5.0 * (1.0 - np.cos(h))])
+    return pts, np.column_stack([np.sin(h), -np.cos(h)])
+
+
+def test_the_offsets_and_curvatures_at_once_are_the_station_by_station_ones() -> None:
+    """``offsets`` and ``path_curvatures`` (one call for many stations, as the tick's feed
+    uses them) equal ``offset`` and the three-point circle station by station, behind the
+    start, along the blend and past its end, across the lap's wrap."""
+    join = LineJoin.start(17.0, -0.25, S, Q, LENGTH)
+    assert join is not None
+    s = np.linspace(15.0, 17.0 + join.length_m + 2.0, 97)
+    assert np.allclose(join.offsets(s), [join.offset(float(x)) for x in s], atol=1e-12)
+    for xy in (_straight, _arc):
+        at_once = join.path_curvatures(s, xy)
+        for x, k in zip(s, at_once, strict=True):
+            pts, normals = xy(np.array([x - 0.3, x, x + 0.3]))
+            d = np.array([join.offset(x + h) for h in (-0.3, 0.0, 0.3)])
+            a, b, c = pts + d[:, None] * normals
+            ab, bc, ca = b - a, c - b, a - c
+            cross = ab[0] * bc[1] - ab[1] * bc[0]
+            den = math.sqrt(float(ab @ ab) * float(bc @ bc) * float(ca @ ca))
+            assert k == pytest.approx(2.0 * cross / den, abs=1e-9)
+            assert join.path_curvature(float(x), xy) == pytest.approx(k, abs=1e-12)
+    past = 17.0 + join.length_m + 1.0  # on the line: the arc's own curvature
+    assert join.path_curvatures(np.array([past]), _arc)[0] == pytest.approx(0.2, rel=1e-6)
+
+
 def test_a_blend_too_tight_for_the_car_is_shortened_or_dropped() -> None:
     """A blend bending tighter than the join may is replaced by a shorter one (the first
     of ``LENGTH_SHARES`` within the limit, else the least tight of them); none at all

@@ -146,7 +146,7 @@ class LineJoin:
         """The largest |kappa| [1/m] of the blended path over the whole join."""
         n = max(int(self.length_m * CHECK_PER_M), 4)
         ahead = self.s0_m + np.linspace(0.0, self.length_m, n + 1)
-        return max(abs(self.path_curvature(float(x), line_xy)) for x in ahead)
+        return float(np.max(np.abs(self.path_curvatures(ahead, line_xy))))
 
     def line_e(self, s_m: float | np.ndarray) -> np.ndarray:
         """q(s): the line's lateral position from the centreline (right +) [m]."""
@@ -175,6 +175,15 @@ class LineJoin:
         h = SLOPE_STEP_M
         return (self.offset(s_m + h) - self.offset(s_m - h)) / (2.0 * h)
 
+    def offsets(self, s_m: np.ndarray) -> np.ndarray:
+        """``offset`` at each of the stations `s_m` (k,) [m], at once (k,) [m]."""
+        s = np.asarray(s_m, dtype=float)
+        ahead = np.mod(s - self.s0_m, self.line_length_m)
+        u = np.where(ahead > 0.75 * self.line_length_m, 0.0,
+                     np.minimum(ahead / self.length_m, 1.0))
+        w = 1.0 - u * u * u * (10.0 + u * (-15.0 + 6.0 * u))  # smootherstep_weight
+        return w * (self.e0_m - self.line_e(s))
+
     def path_curvature(
         self,
         s_m: float,
@@ -182,14 +191,26 @@ class LineJoin:
         step_m: float = 0.3,
     ) -> float:
         """kappa [1/m] (left +) of the blended path at line station `s_m`: the circle through
-        its points at ``s - step``, ``s``, ``s + step``; `line_xy` maps stations (3,) to the
-        line's points (3, 2) and their right normals, ``(points, normals)``."""
-        s = np.array([s_m - step_m, s_m, s_m + step_m])
+        its points at ``s - step``, ``s``, ``s + step``; `line_xy` maps stations (k,) to the
+        line's points (k, 2) and their right normals, ``(points, normals)``."""
+        return float(self.path_curvatures(np.array([s_m]), line_xy, step_m)[0])
+
+    def path_curvatures(
+        self,
+        s_m: np.ndarray,
+        line_xy: LineGeometry,
+        step_m: float = 0.3,
+    ) -> np.ndarray:
+        """``path_curvature`` at each of the stations `s_m` (k,), at once (k,) [1/m]: one
+        call of `line_xy` and of ``offsets`` for all of them (a join's feed and its
+        check took 4 ms a tick station by station)."""
+        centre = np.asarray(s_m, dtype=float)
+        s = np.concatenate([centre - step_m, centre, centre + step_m])
         pts, normals = line_xy(s)
-        d = np.array([self.offset(float(v)) for v in s])
-        p = pts + d[:, None] * normals
-        a, b, c = p
+        p = pts + self.offsets(s)[:, None] * normals
+        a, b, c = np.split(p, 3)
         ab, bc, ca = b - a, c - b, a - c
-        cross = ab[0] * bc[1] - ab[1] * bc[0]
-        den = math.sqrt(float(ab @ ab) * float(bc @ bc) * float(ca @ ca))
-        return 2.0 * cross / den if den > 1e-12 else 0.0
+        cross = ab[:, 0] * bc[:, 1] - ab[:, 1] * bc[:, 0]
+        den = np.sqrt(np.sum(ab * ab, axis=1) * np.sum(bc * bc, axis=1)
+                      * np.sum(ca * ca, axis=1))
+        return np.where(den > 1e-12, 2.0 * cross / np.maximum(den, 1e-300), 0.0)

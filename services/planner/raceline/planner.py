@@ -506,6 +506,8 @@ class RacelinePlanner:
         self._slow_plans = self._built_slow_plans
         #: the grip re-plan under way (``_replan_for_grip``), a slice per tick
         self._grip_job: GripReplan | None = None
+        for tr in (track, self.raceline.track):  # their per-tick tables, not in a tick
+            tr.prepare_projection()
         self.overtake = overtake or OvertakeParams()
         self.opponents: list[OpponentEstimate] = []
         self.plan: OvertakePlan = FREE  #: the last tick's plan around the opponents
@@ -1116,11 +1118,12 @@ class RacelinePlanner:
         ``JOIN_GRIP_SHARE`` of the tyres' grip, at most the line's top speed."""
         join = self._join
         wheelbase = self.vehicle.lf_m + self.vehicle.lr_m
-        k_path = join.path_curvature(s_m + JOIN_LEAD_M, self._line_points)
+        stations = np.append(s_m + JOIN_LEAD_M, s_m + np.linspace(0.0, JOIN_LOOK_M, 6))
+        kappa = join.path_curvatures(stations, self._line_points)  # the lead's, then ahead
+        k_path = float(kappa[0])
         k_line = float(self.raceline.reference.at("kappa", s_m + JOIN_LEAD_M))
         steer = math.atan(wheelbase * k_path) - math.atan(wheelbase * k_line)
-        ahead = s_m + np.linspace(0.0, JOIN_LOOK_M, 6)
-        k_max = max(abs(join.path_curvature(float(s), self._line_points)) for s in ahead)
+        k_max = float(np.max(np.abs(kappa[1:])))
         grip = JOIN_GRIP_SHARE * self.vehicle.mu * GRAVITY_MPS2
         cap = math.sqrt(grip / k_max) if k_max > 1e-6 else math.inf
         # no lead over the line's top speed: the car is not where the plan's clock expects
