@@ -437,8 +437,14 @@ def _limit_lap(track: Track, cfg: RacestackConfig, ds_m: float | None = None
         return None
 
 
-def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
-    """Race every method of `matrix` in `cell`; the cell's record (JSON-ready)."""
+def run_cell(
+    cell: Cell,
+    matrix: Matrix,
+    instrument: Callable[[str, Any], None] | None = None,
+) -> dict[str, Any]:
+    """Race every method of `matrix` in `cell`; the cell's record (JSON-ready).
+    `instrument(method, planner)` is called with each planner before it races (a
+    benchmark's timing of its ticks: ``benchmarks/planner_ticks.py``)."""
     t0 = time.perf_counter()
     track, cfg, pool, ref, note, peak = _setup(cell.track, cell.car, matrix.v_max_mps,
                                                matrix.ds_for(cell.track), matrix.overlay)
@@ -449,6 +455,8 @@ def run_cell(cell: Cell, matrix: Matrix) -> dict[str, Any]:
         try:
             settings = for_pose_source(cfg.planner, cell.pose)
             planner = pool.planner(settings, name, cfg.curvature)
+            if instrument is not None:
+                instrument(name, planner)
             run = run_method(name, planner, track, cfg.simulator, opts)
             entry = results_document(track.name, track.length_m, [run], reference=ref)
             rec = method_record(run, entry["methods"][name], peak)

@@ -154,13 +154,15 @@ def test_the_planner_drives_the_line_it_has_until_the_re_plan_is_done() -> None:
     n = len(planner.built_line.speed_mps)
     _slide_then_line(planner, 18)  # settled at 17: the job started
     job = planner._grip_job
-    assert job is not None and planner.raceline is planner.built_line
+    assert planner.replanning and planner.raceline is planner.built_line
     k = 18
-    while planner._grip_job is not None:
+    while planner.replanning:
+        work = planner.replan_work_done
         planner.step(*_rear_axle_at(planner, 0.15 * k))
         k += 1
         assert k < 200
-        if planner._grip_job is not None:  # under way: the line as built, scaled
+        assert 0 < planner.replan_work_done - work <= 300  # each tick within its work
+        if planner.replanning:  # under way: the line as built, scaled
             assert planner.raceline is planner.built_line and planner.tracker_scale < 1.0
     assert job.ticks > 10 * n / 300  # the passes and six plans over the nodes
     assert planner.raceline is job.result.raceline and planner.profile_scale == 0.8
@@ -171,7 +173,7 @@ def test_the_planner_drives_the_line_it_has_until_the_re_plan_is_done() -> None:
     for j in range(k + 6, k + 9):
         planner.step(*_rear_axle_at(planner, 0.15 * j))
     planner.reset()
-    assert planner._grip_job is None and planner.raceline is planner.built_line
+    assert not planner.replanning and planner.raceline is planner.built_line
     assert [t.plan for t in planner._slow_trackers] == list(planner._built_slow_plans)
 
 

@@ -506,6 +506,9 @@ class RacelinePlanner:
         self._slow_plans = self._built_slow_plans
         #: the grip re-plan under way (``_replan_for_grip``), a slice per tick
         self._grip_job: GripReplan | None = None
+        #: node steps of grip re-plan work done so far (every job, every run): a tick that
+        #: raised it carried re-plan work (``benchmarks/planner_ticks.py``)
+        self.replan_work_done = 0
         for tr in (track, self.raceline.track):  # their per-tick tables, not in a tick
             tr.prepare_projection()
         self.overtake = overtake or OvertakeParams()
@@ -891,6 +894,12 @@ class RacelinePlanner:
         return self._result(cmd, x_m, y_m, yaw_rad, tc.s_m, s_t, e_t, "tracker", t0)
 
     @property
+    def replanning(self) -> bool:
+        """A grip re-plan is under way (``_replan_for_grip``): its slices run in the
+        coming ticks."""
+        return self._grip_job is not None
+
+    @property
     def tracker_scale(self) -> float:
         """The share of the current ``raceline``'s speeds the tracker drives: the grip
         adaptation's speed scale over the one its profile was re-planned for."""
@@ -971,7 +980,10 @@ class RacelinePlanner:
         car on the re-planned line from the next tick once it is done."""
         assert self._grip_job is not None
         job = self._grip_job
-        if job.advance(self.options.grip_replan_work_per_tick):
+        before = job.work_done
+        finished = job.advance(self.options.grip_replan_work_per_tick)
+        self.replan_work_done += job.work_done - before
+        if finished:
             done = job.result
             assert done is not None
             self._grip_job = None
