@@ -101,6 +101,8 @@ def test_the_offsets_and_curvatures_at_once_are_the_station_by_station_ones() ->
     start, along the blend and past its end, across the lap's wrap."""
     join = LineJoin.start(17.0, -0.25, S, Q, LENGTH)
     assert join is not None
+    laps = np.linspace(-30.0, 50.0, 801)  # the line's table: np.interp's periodic one
+    assert np.array_equal(join.line_e(laps), np.interp(laps, S, Q, period=LENGTH))
     s = np.linspace(15.0, 17.0 + join.length_m + 2.0, 97)
     assert np.allclose(join.offsets(s), [join.offset(float(x)) for x in s], atol=1e-12)
     for xy in (_straight, _arc):
