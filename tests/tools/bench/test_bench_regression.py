@@ -16,9 +16,14 @@ from services.tools.bench.run import main
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "bench_regression.json"
 STORED = json.loads(DATA.read_text(encoding="utf-8"))["runs"]
-#: Lap times agree to the millisecond; the contour error to 0.1 mm.
+#: Lap times agree to the millisecond; the largest contour error per lap to 0.5 mm. Raced
+#: on another machine than the one that stored them (an AMD EPYC without AVX-512, numpy
+#: 2.4.6; 2026-12-06), every figure agreed to 0.0005 ms / mm but cimpcc-line's on paperlike
+#: with the true pose: laps within 0.26 ms, contour errors within 0.14 mm, at the same code
+#: (3dddec9) as on the machine that passed at 0.1 mm; the closed loop carries the last bits
+#: the platform's floating point changes.
 LAP_TOL_S = 1e-3
-E_CON_TOL_M = 1e-4
+E_CON_TOL_M = 5e-4
 
 
 def _track_spec(name: str, tracks: Path) -> str:
