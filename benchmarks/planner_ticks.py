@@ -104,20 +104,21 @@ def run(cells: list[str], modes: list[str], laps: int, method: str) -> list[dict
         if len(parts) != 3 or parts[1] not in rb.CARS or parts[2] not in rb.ESTIMATORS:
             raise rb.BenchError(f"a cell is TRACK/CAR/POSE with a car of {sorted(rb.CARS)} "
                                 f"and a pose of {list(rb.ESTIMATORS)}, got {text!r}")
-        parsed.append(rb.Cell(*parts))
+        track = rb.resolve_tracks(parts[0])[0]  # map416: the shared one
+        parsed.append((text, rb.Cell(track, parts[1], parts[2])))
     out = []
     for mode in modes:
         overlay = "" if mode == "sliced" else json.dumps(
             {"planner": {"raceline": {"grip_replan_work_per_tick": 10_000_000}}},
             sort_keys=True)
-        for cell in parsed:
+        for label, cell in parsed:
             matrix = rb.Matrix(tracks=(cell.track,), cars=(cell.car,), poses=(cell.pose,),
                                methods=(method,), laps=laps, overlay=overlay)
             rb.make_laps(matrix, jobs=1)
             times = TickTimes()
             rec = rb.run_cell(cell, matrix, instrument=lambda _m, p, t=times: t.attach(p))
             m = rec["methods"][method]
-            out.append({"cell": f"{cell.track}/{cell.car}/{cell.pose}", "mode": mode,
+            out.append({"cell": label, "mode": mode,
                         "ratio": m.get("ratio"), "off_track": m.get("off_track"),
                         "spins": m.get("spins"), "error": m.get("error"),
                         **tick_figures(times)})

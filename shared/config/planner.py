@@ -346,12 +346,13 @@ class RacelineSettings(Section):
         "last profile)",
     )
     grip_replan_work_per_tick: int = Field(
-        1000, ge=1, le=10_000_000,
+        500, ge=1, le=10_000_000,
         description="grip profile: the re-plan is done a slice per tick, at most this many "
         "node steps of work each (its profile passes and its six plans over the line's "
-        "nodes: about 14 per node, a step 0.5-0.9 us of CPU here); the car drives the line "
-        "it has at the scale it has until the re-planned one is done (10-25 ticks). Done in "
-        "one tick, the re-plan took 2.5-20 ms against the planner's 2 ms budget",
+        "nodes: about 16 per node, a step 0.7-1.2 us of CPU on the 2-core machines); the "
+        "car drives the line it has at the scale it has until the re-planned one is done "
+        "(15-60 ticks). Done in one tick, the re-plan took 10-20 ms of CPU against the "
+        "planner's 2 ms budget",
     )
     speed_share: float = Field(
         1.0, gt=0.1, le=1.0,

@@ -117,7 +117,9 @@ def test_the_re_plan_done_a_slice_per_tick_is_the_re_plan_done_at_once() -> None
 def _planner(vehicle=None, **raceline) -> RacelinePlanner:
     options = {"start_speed_scale": 1.0, "grip_error_m": 0.2, "grip_step": 0.05,
                "grip_min_scale": 0.8, "grip_yaw_error_radps": 0.0,
-               "servo_lag_estimate": False, **raceline}
+               "servo_lag_estimate": False,
+               "grip_replan_work_per_tick": 10**6,  # at once (sliced: its own test below)
+               **raceline}
     settings = PlannerSettings(method="raceline", raceline=RacelineSettings(**options))
     line = _line()
     return RacelinePlanner(line.track, settings, raceline=line, vehicle=vehicle)

@@ -92,6 +92,12 @@ OUTWARD_RAMP_MPS = 1.0
 DYNAMIC_SHARE_EXPONENT = 4.0
 
 
+#: The work [node steps] a job's slice of whole-array numpy calls announces at least: a
+#: dozen calls cost 75-280 us of CPU however short the line (on a machine where a Python
+#: node step of the profile's passes costs 0.7-1.2 us; ``raceline.jobs``).
+ARRAY_SLICE_WORK = 200
+
+
 @dataclass(frozen=True, eq=False)
 class ReferenceLap:
     """A planned closed lap as periodic tables over the arc length of its CoG path.
@@ -233,13 +239,13 @@ class ReferenceLap:
     ) -> Job[ReferenceLap]:
         """``from_path`` as a job (``raceline.jobs``; arguments as there): the steady-state
         steering `chunk` nodes a slice (None: all at once), the set-up and the closing
-        sums a slice of n / 4 each."""
+        sums a slice each, of n / 4 node steps or ``ARRAY_SLICE_WORK``, whichever is more."""
         v = np.asarray(v_mps, dtype=float)
         kappa = np.asarray(kappa_1pm, dtype=float)
         if np.any(v <= 0.0):
             raise ValueError("planned speeds must be positive")
         n = len(v)
-        yield max(n // 4, 1)
+        yield max(n // 4, ARRAY_SLICE_WORK)
         seg = np.hypot(*(np.roll(line.xy, -1, axis=0) - line.xy).T)
         v_dot = (np.roll(v, -1) ** 2 - v**2) / (2.0 * seg)
         dt = 2.0 * seg / (v + np.roll(v, -1))
@@ -253,7 +259,7 @@ class ReferenceLap:
                 yield part.stop - start
                 delta[part], beta[part], accel[part] = steady_state_steering(
                     kappa[part], v[part], v_dot[part], vehicle)
-        yield max(n // 4, 1)
+        yield max(n // 4, ARRAY_SLICE_WORK)
         tangent = line.tangent_unit()
         course = np.unwrap(np.arctan2(tangent[:, 1], tangent[:, 0]))
         return cls(
@@ -306,8 +312,8 @@ class ReferenceLap:
         chunk: int | None = None,
     ) -> Job[ReferenceLap]:
         """``slower`` as a job (``raceline.jobs``; arguments as there, `chunk` as
-        ``from_path_job``'s): its ``from_path`` plans' slices, the dynamic part a slice of
-        n / 4."""
+        ``from_path_job``'s): its ``from_path`` plans' slices, the dynamic part a slice
+        (as ``from_path_job``'s set-up)."""
         shares = np.asarray(share, dtype=float)
         if shares.ndim not in (0, 1) or (shares.ndim == 1 and shares.shape != self.v_mps.shape):
             raise ValueError(f"speed share must be one number or one per node ({len(self.s_m)})")
@@ -321,7 +327,7 @@ class ReferenceLap:
         if steady is None:
             steady = yield from ReferenceLap.from_path_job(self.line, self.kappa_1pm,
                                                            self.v_mps, vehicle, chunk)
-        yield max(len(self.s_m) // 4, 1)
+        yield max(len(self.s_m) // 4, ARRAY_SLICE_WORK)
         k = share**DYNAMIC_SHARE_EXPONENT
         yaw_dyn = np.asarray(wrap_angle(self.yaw_rad - steady.yaw_rad))
         return replace(
