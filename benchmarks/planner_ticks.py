@@ -107,11 +107,12 @@ def run(cells: list[str], modes: list[str], laps: int, method: str) -> list[dict
         track = rb.resolve_tracks(parts[0])[0]  # map416: the shared one
         parsed.append((text, rb.Cell(track, parts[1], parts[2])))
     out = []
-    for mode in modes:
-        overlay = "" if mode == "sliced" else json.dumps(
-            {"planner": {"raceline": {"grip_replan_work_per_tick": 10_000_000}}},
-            sort_keys=True)
-        for label, cell in parsed:
+    for label, cell in parsed:  # the modes of a cell one after the other (the machine's
+        # speed drifts: on these VMs a quiet minute's medians differed by 2x from the next)
+        for mode in modes:
+            overlay = "" if mode == "sliced" else json.dumps(
+                {"planner": {"raceline": {"grip_replan_work_per_tick": 10_000_000}}},
+                sort_keys=True)
             matrix = rb.Matrix(tracks=(cell.track,), cars=(cell.car,), poses=(cell.pose,),
                                methods=(method,), laps=laps, overlay=overlay)
             rb.make_laps(matrix, jobs=1)
