@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import robustness as rb
+from shared.config.methods import METHODS, RACELINE
 
 #: The planner's budget per tick [ms] (issue 21: p99 at most 2 ms).
 BUDGET_MS = 2.0
@@ -111,7 +112,7 @@ def run(cells: list[str], modes: list[str], laps: int, method: str) -> list[dict
         # speed drifts: on these VMs a quiet minute's medians differed by 2x from the next)
         for mode in modes:
             overlay = "" if mode == "sliced" else json.dumps(
-                {"planner": {"raceline": {"grip_replan_work_per_tick": 10_000_000}}},
+                {"planner": {METHODS[RACELINE].section: {"grip_replan_work_per_tick": 10**7}}},
                 sort_keys=True)
             matrix = rb.Matrix(tracks=(cell.track,), cars=(cell.car,), poses=(cell.pose,),
                                methods=(method,), laps=laps, overlay=overlay)
@@ -178,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--at-once", action="store_true",
                     help="race each cell also with the re-plan done in one tick")
     ap.add_argument("--laps", type=int, default=2, help="flying laps per cell")
-    ap.add_argument("--method", default="raceline", help="the planner method")
+    ap.add_argument("--method", default=RACELINE, help="the planner method")
     ap.add_argument("--out", default="", help="write the records to this JSON file")
     args = ap.parse_args(argv)
     modes = ["sliced", "at-once"] if args.at_once else ["sliced"]
