@@ -13,6 +13,7 @@ that starts it (``--at-once``: the work budget lifted, as before issue 21's slic
     .venv/bin/python -m benchmarks.planner_ticks
     .venv/bin/python -m benchmarks.planner_ticks --cells gen:15/identified-on-default/truth \\
         --at-once
+    .venv/bin/python -m benchmarks.planner_ticks --at-once --hog   # a busy loop on one core
 
 Prints one row per cell and mode: ticks, re-plan ticks, CPU median / p99 / max [ms], the
 re-plan ticks' CPU max, CPU over 2 ms (ticks), wall p99 / max, and the lap figures (ratio,
@@ -32,6 +33,8 @@ from typing import Any
 import numpy as np
 
 from benchmarks import robustness as rb
+from benchmarks.hog import hog_cpu, start_hog
+from services.tools.launcher.supervisor import stop_process
 from shared.config.methods import METHODS, RACELINE
 
 #: The planner's budget per tick [ms] (issue 21: p99 at most 2 ms).
@@ -181,14 +184,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--laps", type=int, default=2, help="flying laps per cell")
     ap.add_argument("--method", default=RACELINE, help="the planner method")
     ap.add_argument("--out", default="", help="write the records to this JSON file")
+    ap.add_argument("--hog", action="store_true",
+                    help="a busy loop pinned to one of the cores while the cells race "
+                    "(benchmarks/hog.py)")
     args = ap.parse_args(argv)
     modes = ["sliced", "at-once"] if args.at_once else ["sliced"]
     print(HEADER, flush=True)
+    hog = start_hog(hog_cpu()) if args.hog else None
     try:
         records = run([c for c in args.cells.split(",") if c], modes, args.laps, args.method)
     except (rb.BenchError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if hog is not None:
+            stop_process(hog, grace_s=2.0)
     for line in summary(records):
         print(line)
     if args.out:
