@@ -251,6 +251,23 @@ def test_a_line_tighter_than_the_lock_starts_at_its_own_speeds() -> None:
     assert wide.drivable_slower and wide.speed_scale == 0.8
 
 
+def test_a_line_tighter_than_the_lock_is_not_slowed_for_a_slide() -> None:
+    """A lower scale cannot hold a car closer to a line it cannot drive slower (a ``linear``
+    car's drift): there a slide cuts nothing (held out, gen-20 ``linear`` was cut to
+    1.21-1.25 x the limit after one out-lap event); on a line it can drive slower the same
+    slide cuts the scale."""
+    grip = dict(grip_error_m=0.2, grip_step=0.05, grip_min_scale=0.8)
+    for radius, width, cut in ((0.5, 0.3, False), (3.0, 0.6, True)):
+        planner = _circle_planner(radius=radius, width=width, **grip)
+        assert planner.drivable_slower is cut
+        step = 0.05 * radius
+        for k in range(10):  # on the line
+            planner.step(*_rear_axle_at(planner, step * k))
+        for k in range(10, 20):  # 0.25 m off it
+            planner.step(*_rear_axle_at(planner, step * k, 0.25 * radius / 3.0 + 0.2))
+        assert (planner.speed_scale < 1.0) is cut
+
+
 def test_a_car_slower_than_its_line_keeps_its_pace_from_the_start() -> None:
     """No cautious out lap for a car racing below its line (an opponent at a speed scale):
     held at 0.8 of its own 0.85 (0.68 of the line) it left map416 twice in every start of
