@@ -281,8 +281,8 @@ class RacelineSettings(Section):
         0.3, ge=0.0, le=2.0,
         description="grip adaptation: each tick the car is further than this from the line "
         "[m] the plan's speeds shrink by grip_step (from a join's path; never beside an "
-        "opponent or on the way back from one, nor on a line tighter than the steering "
-        "lock turns the car, a linear car's drift, which no lower speed holds); 0: off. "
+        "opponent or on the way back from one, nor for linear tyres on a line tighter "
+        "than the steering lock turns the car, a drift no lower speed holds); 0: off. "
         "The identified car on the gym car's line: 3.0-4.4 x its limit with 16-82 spins a "
         "cell off, 1.41-1.46 with 0-7 spins at 0.3 (README, issue #21)",
     )

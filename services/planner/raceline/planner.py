@@ -1048,18 +1048,22 @@ class RacelinePlanner:
         ``grip_min_scale``); it never rises again in a run. A car that has the grip it is
         planned for stays within a few centimetres of its line and keeps the plan; one
         planned on another car's grip (the identified car raced on the gym car's line)
-        slides wide in its first bends and settles at the speeds it can hold. Never on a
-        line the car cannot drive slower (``drivable_slower``): there a lower scale does
-        not bring the car back to its line."""
+        slides wide in its first bends and settles at the speeds it can hold. Never for the
+        gym's unbounded ``linear`` tyres on a line they cannot drive slower
+        (``drivable_slower``): no grip to find there, and a lower scale does not bring
+        the car back to its line."""
         o = self.options
         if not self._on_line:  # joining it (the start, after a recovery or a pass) is no
             # slide
             self._on_line = abs(e_line_m) < 0.5 * o.grip_error_m
             return
-        if not self.drivable_slower:  # a line the car cannot drive slower (a `linear`
-            # car's drift through bends tighter than its lock turns it): a lower scale
-            # cannot hold it closer, it turns the car at its lock's radius, wider still
-            # (gen-20 `linear`: one out-lap event, then cut to 1.21-1.25 x the limit)
+        if self.vehicle.tyre_model == "linear" and not self.drivable_slower:
+            # the gym's unbounded tyres have no grip to find, and their line drifts through
+            # bends tighter than the lock turns the car: a lower scale cannot hold it
+            # closer, it turns the car at its lock's radius, wider still (gen-20 `linear`:
+            # one out-lap event, then cut to 1.21-1.25 x the limit). A default car's line
+            # through such a bend keeps the rule: there a slide is the grip it lacks (on
+            # the identified car, without it gen-1003 spun)
             return
         limit = o.grip_error_m
         if self._start_phase is not None:  # the cautious out lap judges more closely
