@@ -1138,7 +1138,9 @@ class RacelinePlanner:
         `s_m` (``raceline.join``): the kinematic steering its curvature needs beyond the
         line's, ``JOIN_LEAD_M`` ahead (the command acts after the delays), and the speed
         at which its tightest curvature over the next ``JOIN_LOOK_M`` takes
-        ``JOIN_GRIP_SHARE`` of the tyres' grip, at most the line's top speed."""
+        ``JOIN_GRIP_SHARE`` of the tyres' grip, at most the line's top speed. For the gym's
+        unbounded ``linear`` tyres the curvature is what the path bends beyond the line
+        (the line's own bends are driven at its speeds)."""
         join = self._join
         wheelbase = self.vehicle.lf_m + self.vehicle.lr_m
         stations = np.append(s_m + JOIN_LEAD_M, s_m + np.linspace(0.0, JOIN_LOOK_M, 6))
@@ -1147,6 +1149,14 @@ class RacelinePlanner:
         k_line = float(self.raceline.reference.at("kappa", s_m + JOIN_LEAD_M))
         steer = math.atan(wheelbase * k_path) - math.atan(wheelbase * k_line)
         k_max = float(np.max(np.abs(kappa[1:])))
+        if self.vehicle.tyre_model == "linear":  # unbounded tyres hold the line's own
+            # bends at its speeds (drifting through those tighter than the lock): only
+            # what the blend bends beyond the line caps the speed. Capped by the line's
+            # own curvature too, the car came into such a bend at 2.1 m/s against the
+            # plan's 3-4 and ran wide (gen-20 `linear`'s out lap, 10 of 80 standing
+            # starts on gen:1001-1008)
+            k_line = np.abs(self.raceline.reference.at("kappa", stations[1:]))
+            k_max = max(float(np.max(np.abs(kappa[1:]) - k_line)), 0.0)
         grip = JOIN_GRIP_SHARE * self.vehicle.mu * GRAVITY_MPS2
         cap = math.sqrt(grip / k_max) if k_max > 1e-6 else math.inf
         # no lead over the line's top speed: the car is not where the plan's clock expects
