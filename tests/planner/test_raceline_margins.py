@@ -378,3 +378,30 @@ def test_a_car_turning_off_its_line_s_yaw_rate_slows_down_before_it_strays() -> 
     s, extra = _yawing_along(lin, 5, 0.0, 0.0, 0.0)
     _yawing_along(lin, 5, s, extra, 1.0)
     assert lin.speed_scale == 1.0
+
+
+def test_a_slow_servo_car_held_below_its_line_steers_for_the_speed_it_has() -> None:
+    """Held below its line (the cautious out lap, a grip cut), the steering is the slower
+    plans' at the car's share of the line's speed. With a slow servo (the identified car's
+    0.158 s) that share is the speed the car travelled, not its command: accelerating at 0.8
+    of its line, the command's lead put it at the line's speed and gave it the line's
+    steering (map416: an S-bend's steering flipped 0.4 rad early). The gym car's fast servo
+    keeps the command."""
+    from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED
+
+    for car, slow in ((REAL_CAR_IDENTIFIED, True), (F1TENTH_GYM, False)):
+        planner = _circle_planner(vehicle=car)
+        assert planner._slow_servo is slow
+        s = 2.0
+        x, y, yaw = _rear_axle_at(planner, s)
+        lr = planner.vehicle.lr_m
+        cx, cy = x + lr * math.cos(yaw), y + lr * math.sin(yaw)
+        v_p = float(planner.raceline.reference.at("v", s))
+        line_rad = planner.tracker.command(cx, cy, yaw, s).steering_rad
+        planner._travel_mps = None  # no last pose: the command
+        at_07 = planner._slow_steering(cx, cy, yaw, s, 0.7 * v_p, line_rad)
+        at_line = planner._slow_steering(cx, cy, yaw, s, v_p, line_rad)
+        assert at_07 != pytest.approx(at_line)
+        planner._travel_mps = 0.7 * v_p  # the car at 0.7, its command at the line's speed
+        got = planner._slow_steering(cx, cy, yaw, s, v_p, line_rad)
+        assert got == pytest.approx(at_07 if slow else at_line)

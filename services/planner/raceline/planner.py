@@ -478,6 +478,9 @@ class RacelinePlanner:
         self.settings = settings
         self.options = settings.raceline
         self.vehicle = vehicle or F1TENTH_GYM
+        #: the told car's servo is slow (``servo_reach``): held below its line it steers
+        #: for the speed it has (``_slow_steering``)
+        self._slow_servo = servo_reach(self.vehicle) is not None
         b = settings.bounds
         self._delta_lim = (b.delta_rad[0], b.delta_rad[1])
         self._speed_lim = (b.v_l_mps[0], b.v_l_mps[1])
@@ -686,8 +689,17 @@ class RacelinePlanner:
         feed-forward and reference yaw are for its speed (slower, the car needs less of the
         dynamic part of the steering and slips less: it would run inside); interpolated
         between the trackers of the two nearest ``FEED_FORWARD_SCALES`` (the top one is
-        the line's own, `line_rad`)."""
+        the line's own, `line_rad`). A car with a slow servo (``servo_reach`` of the
+        told car) is judged by the speed it travelled over the last period instead."""
         v_p = max(float(self.raceline.reference.at("v", hint)), 0.1)
+        if self._slow_servo and self._travel_mps is not None:
+            # a car with a slow servo steers for the speed it has, not its command: held at
+            # 0.8 of its line and accelerating, its command (with the speed loop's lead)
+            # was at the line's speed and took the line's steering; an S-bend's steering
+            # flipped 0.4 rad early and the car cut 5 cm inside the next bend (map416, the
+            # identified car). The gym car's fast servo did worse so (16 of 60 standing
+            # starts left the track against 0): it keeps the command
+            speed_mps = self._travel_mps
         ratio = min(max(speed_mps / v_p, FEED_FORWARD_SCALES[0]), 1.0)
         scales = FEED_FORWARD_SCALES
         i = min(int(np.searchsorted(scales, ratio, side="right")) - 1, len(scales) - 2)
