@@ -978,7 +978,7 @@ class RacelinePlanner:
                 self._scale_quiet = 0
                 return
         if (not o.grip_profile or not self._servo_known
-                or self.vehicle.tyre_model == "linear"
+                or self._unbounded_tyres
                 or abs(self.speed_scale - self.profile_scale) <= 1e-9):
             return
         grip = o.grip_profile_lateral_share * self._line_grip_mps2
@@ -1010,6 +1010,13 @@ class RacelinePlanner:
         1.4-2.8 times tighter than that (README, issue #21): slower, without the line's
         slip, the car turns at its lock's radius and runs wide."""
         return float(np.max(np.abs(self.raceline.reference.kappa_1pm))) <= self._turn_1pm
+
+    @cached_property
+    def _unbounded_tyres(self) -> bool:
+        """The told car has the gym's ``linear`` tyres: no peak force, so no grip for the
+        adaptation to find or for a join to be capped by, and a line that drifts through
+        bends tighter than the lock turns the car (``drivable_slower``)."""
+        return self.vehicle.tyre_model == "linear"
 
     @cached_property
     def _turn_1pm(self) -> float:
@@ -1069,7 +1076,7 @@ class RacelinePlanner:
             # slide
             self._on_line = abs(e_line_m) < 0.5 * o.grip_error_m
             return
-        if self.vehicle.tyre_model == "linear" and not self.drivable_slower:
+        if self._unbounded_tyres and not self.drivable_slower:
             # the gym's unbounded tyres have no grip to find, and their line drifts through
             # bends tighter than the lock turns the car: a lower scale cannot hold it
             # closer, it turns the car at its lock's radius, wider still (gen-20 `linear`:
@@ -1112,7 +1119,7 @@ class RacelinePlanner:
         # off the line's slip yaws very differently: held out, gen-7 and gen-20 were cut to
         # 1.15-1.46 x the limit; judged only near such bends, the same)
         if (o.grip_yaw_error_radps <= 0.0 or not self._on_line
-                or self.vehicle.tyre_model == "linear"):
+                or self._unbounded_tyres):
             self._yaw_ticks = 0
             return
         if error is None or error <= o.grip_yaw_error_radps:
@@ -1161,7 +1168,7 @@ class RacelinePlanner:
         k_line = float(self.raceline.reference.at("kappa", s_m + JOIN_LEAD_M))
         steer = math.atan(wheelbase * k_path) - math.atan(wheelbase * k_line)
         k_max = float(np.max(np.abs(kappa[1:])))
-        if self.vehicle.tyre_model == "linear":  # unbounded tyres hold the line's own
+        if self._unbounded_tyres:  # unbounded tyres hold the line's own
             # bends at its speeds (drifting through those tighter than the lock): only
             # what the blend bends beyond the line caps the speed. Capped by the line's
             # own curvature too, the car came into such a bend at 2.1 m/s against the
