@@ -184,10 +184,9 @@ def test_a_linear_car_joins_at_its_line_s_speeds_into_a_bend_tighter_than_its_lo
     tighter than the lock turns the car. Capped by the line's own curvature as if the tyres
     saturated, the car came into it at 2.1 m/s against the plan's 3-4 and left the track
     (0.46 m wide). Capped only by what the blend bends beyond the line, it stays on."""
+    from benchmarks.standing_starts import race_from
     from services.planner.mintime.store import ensure_artefacts
     from services.planner.raceline.planner import RacelinePlanner
-    from services.simulator import Command
-    from services.tools.bench.head_to_head import SimCar
     from shared.config import config_from_dict
     from shared.config.methods import RACELINE
     from shared.track import load_track
@@ -197,18 +196,6 @@ def test_a_linear_car_joins_at_its_line_s_speeds_into_a_bend_tighter_than_its_lo
     ensure_artefacts(RACELINE, track, cfg.planner, cfg.vehicle, progress=None)
     planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
     assert not planner.drivable_slower
-    period, step = planner.settings.dt_s, cfg.simulator.integration_step_s
-    car = SimCar(track, cfg.simulator, 4.03)
-    planner.reset()
-    speeds = []
-    for _ in range(int(3.0 / period)):
-        res = planner.step(*car.rear_pose())
-        new = Command(res.command.speed_mps, res.command.steering_rad)
-        car.step(car.cmd, 0.002)
-        n = max(1, math.ceil((period - 0.002) / step - 1e-9))
-        for _ in range(n):
-            car.step(new, (period - 0.002) / n)
-        car.cmd = new
-        speeds.append(car.sim.state.v_mps)
-    assert car.off == 0
-    assert max(speeds) <= 4.18 * 1.01
+    off, top, _ = race_from(planner, track, cfg, 4.03, 3.0)
+    assert off == 0
+    assert top <= 4.18 * 1.01
