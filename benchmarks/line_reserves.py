@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 
-from benchmarks.robustness import BenchError, _track, config_for, resolve_tracks
+from benchmarks.robustness import BenchError, _track, config_for, load_overlay, resolve_tracks
 from services.planner import for_pose_source
 from services.planner.mintime.ocp import MinTimeError, MinTimeSettings
 from services.planner.mintime.requests import LIMIT, limit_request, raceline_request
@@ -34,20 +35,33 @@ from shared.evaluation.car_family import car_names
 
 #: The variants: name -> the line's settings with that reserve removed (None: the line).
 VARIANTS = ("line", "no margin", "no slip", "no ellipse")
+#: ... and those of the high-speed reserve (``MinTimeSettings.reserve_*``), printed when a
+#: line has it (a cap above ``min_time_reserve_speed_mps``, e.g. ``--v-max 10``): its
+#: speed margin, its steering-rate cost, its yaw bound, the rear's own share, and the whole
+#: ellipse reserve (both shares 1).
+SPEED_VARIANTS = ("no speed margin", "no steer cost", "no yaw bound", "no rear share",
+                  "no hs ellipse")
 
 
 def variant(line: MinTimeSettings, limit: MinTimeSettings, name: str) -> MinTimeSettings:
-    """`line`'s settings with the reserve `name` (``VARIANTS``) removed: the margin back to
-    `limit`'s, the slip or ellipse share to 1; "line": `line` itself."""
-    if name == "line":
-        return line
-    if name == "no margin":
-        return dataclasses.replace(line, margin_m=limit.margin_m)
-    if name == "no slip":
-        return dataclasses.replace(line, slip_fraction=1.0)
-    if name == "no ellipse":
-        return dataclasses.replace(line, ellipse_fraction=1.0)
-    raise ValueError(f"unknown variant {name!r}; choose from {', '.join(VARIANTS)}")
+    """`line`'s settings with the reserve `name` (``VARIANTS``, ``SPEED_VARIANTS``)
+    removed: the margin back to `limit`'s, the slip or ellipse share to 1, the high-speed
+    reserve's part off; "line": `line` itself."""
+    changes = {
+        "line": {},
+        "no margin": {"margin_m": limit.margin_m},
+        "no slip": {"slip_fraction": 1.0},
+        "no ellipse": {"ellipse_fraction": 1.0},
+        "no speed margin": {"reserve_margin_m": 0.0},
+        "no steer cost": {"reserve_steering_weight_s": 0.0},
+        "no yaw bound": {"reserve_yaw_pole_per_s": None},
+        "no rear share": {"reserve_rear_fraction": None},
+        "no hs ellipse": {"reserve_fraction": 1.0, "reserve_rear_fraction": None},
+    }
+    if name not in changes:
+        raise ValueError(f"unknown variant {name!r}; choose from "
+                         f"{', '.join(VARIANTS + SPEED_VARIANTS)}")
+    return dataclasses.replace(line, **changes[name]) if changes[name] else line
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,7 +73,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cars", default="identified",
                     help="comma list of robustness cars the planner knows (default %(default)s)")
     ap.add_argument("--poses", default="truth", help="comma list of truth, ekf, lidar")
+    ap.add_argument("--v-max", type=float, default=None,
+                    help="the cap [m/s] of the line and the limit (default the "
+                    "configuration's 4.18; above min_time_reserve_speed_mps the high-speed "
+                    "reserve's parts are priced too)")
+    ap.add_argument("--config", default=None,
+                    help="a TOML file of configuration tables laid over every car's (as "
+                    "robustness takes it)")
     args = ap.parse_args(argv)
+    try:
+        extra = json.loads(load_overlay(args.config)) if args.config else {}
+    except BenchError as exc:
+        print(f"line_reserves: {exc}", file=sys.stderr)
+        return 2
     try:
         cars = car_names(args.cars)
     except ValueError as exc:
@@ -71,8 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     except BenchError as exc:
         print(f"line_reserves: {exc}", file=sys.stderr)
         return 2
-    print(f"{'track':<12} {'car':<11} {'pose':<6} {'limit [s]':>9} "
-          + " ".join(f"{v:>11}" for v in VARIANTS) + "   margin [m]")
+    names = VARIANTS
+    header_done = False
     for spec in specs:
         try:
             track = _track(spec)
@@ -80,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"line_reserves: {exc}", file=sys.stderr)
             return 2
         for car in cars:
-            cfg = config_for(car)
+            cfg = config_for(car, args.v_max, None, extra or None)
             vehicle = cfg.vehicle
             lim_car, lim = limit_request(cfg.planner, vehicle)
             try:
@@ -95,14 +121,20 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"line_reserves: {exc}", file=sys.stderr)
                     return 2
                 line_car, line = raceline_request(settings, vehicle)
+                if not header_done:
+                    if line.reserve_active and vehicle.tyre_model != "linear":
+                        names = VARIANTS + SPEED_VARIANTS
+                    print(f"{'track':<12} {'car':<11} {'pose':<6} {'limit [s]':>9} "
+                          + " ".join(f"{v:>15}" for v in names) + "   margin [m]")
+                    header_done = True
                 cells = []
-                for name in VARIANTS:
+                for name in names:
                     try:
                         lap = make_min_time_lap(track, line_car, variant(line, lim, name),
                                                 progress=None)
-                        cells.append(f"{lap.lap_time_s / limit.lap_time_s:>11.4f}")
+                        cells.append(f"{lap.lap_time_s / limit.lap_time_s:>15.4f}")
                     except MinTimeError:
-                        cells.append(f"{'infeasible':>11}")
+                        cells.append(f"{'infeasible':>15}")
                 print(f"{track.name:<12} {car:<11} {pose:<6} {limit.lap_time_s:>9.3f} "
                       + " ".join(cells) + f"   {line.margin_m:.3f}", flush=True)
     print("ratio = the line's own lap time / the car's limit (the floor of the robustness "

@@ -205,9 +205,12 @@ class RacelineSettings(Section):
         "--v-max 10, issue 21)",
     )
     min_time_reserve_fraction: float = Field(
-        0.9, ge=0.1, le=1.0,
+        1.0, ge=0.1, le=1.0,
         description="min_time: the share of each axle's friction-ellipse radius the line uses "
-        "min_time_reserve_width_mps and more above min_time_reserve_speed_mps [1]",
+        "min_time_reserve_width_mps and more above the reserve's start (the front's alone "
+        "when min_time_reserve_rear_fraction is set); 1: the whole ellipse (the front's "
+        "default: a saturated front only pushes the car wide; 0.9 for both axles, tuned on "
+        "Oschersleben, spun the car on 8 of 15 generated tracks at --v-max 10) [1]",
     )
     min_time_reserve_width_mps: float = Field(
         2.0, ge=0.01, le=20.0,
@@ -226,6 +229,34 @@ class RacelineSettings(Section):
         description="min_time, with the reserve: the footprint keeps this much more margin "
         "[m] at speed (times the reserve's ramp S(v): the tracking error's tube grows with "
         "the speed); 0: none",
+    )
+    min_time_reserve_yaw_pole_per_s: float | None = Field(
+        2.0, ge=0.0, le=100.0,
+        description="min_time, with the reserve: the line brakes no harder than keeps the "
+        "car's yaw (linearised about straight running at its speed and braking) diverging "
+        "at most this fast [1/s]; braking moves load off the rear, and above about 4.4 m/s "
+        "the gym car then oversteers (at 10 m/s and 9.3 m/s^2 its yaw diverges at 8 1/s, "
+        "faster than the 20 Hz tracker's delays catch: spins braking into bends at "
+        "--v-max 10); None: no bound (tuned on the generator's tuning seeds at --v-max 10: "
+        "without it 10 spins in 15 tracks, with 2 1/s 0-1; 1 and 0 1/s no better)",
+    )
+    min_time_reserve_from_mps: float | None = Field(
+        0.0, ge=0.0, le=20.0,
+        description="min_time, with the reserve (a line capped above "
+        "min_time_reserve_speed_mps): the speed from which the reserve's grip part (its "
+        "ellipse shares and steering cost) fades in over min_time_reserve_width_mps [m/s] "
+        "(its margin still grows from min_time_reserve_speed_mps); None: from "
+        "min_time_reserve_speed_mps. Lines capped at or below that speed are not changed. "
+        "0 (the default): at every speed of such a line, its apexes at 4-5 m/s entered "
+        "braking from 7-10 m/s included (faded in from 4.18 m/s the car spun there)",
+    )
+    min_time_reserve_rear_fraction: float | None = Field(
+        0.8, ge=0.1, le=1.0,
+        description="min_time, with the reserve: the rear axle's own share of its "
+        "friction-ellipse radius at speed (a saturated rear spins the car, a saturated "
+        "front only pushes it wide); None: min_time_reserve_fraction for both axles (tuned "
+        "on the generator's tuning seeds at --v-max 10: 0.85 spun the car in 5 of 15, 0.75 "
+        "cost 2.5 % more lap time than 0.8) [1]",
     )
     a_lat_mps2: float = Field(
         5.5, gt=0.0, le=50.0, description="min_curvature: lateral acceleration limit [m/s^2]"
@@ -252,11 +283,12 @@ class RacelineSettings(Section):
         "every lap at or below it is k_lateral's; None: k_lateral at every speed",
     )
     k_lateral_speed_exponent: float = Field(
-        4.0, ge=0.0, le=6.0,
+        3.0, ge=0.0, le=6.0,
         description="tracker: above k_lateral_speed_mps k_lateral falls as (v_k / v)^n, this "
-        "n [1] (2 holds the heading feedback's bandwidth k_e l_d v / L; 4, tuned on "
-        "Oschersleben at --v-max 10: less feedback at speed, where its corrections at the "
-        "friction limit spun the car; no effect at or below k_lateral_speed_mps)",
+        "n [1] with v the smaller of the planned speed and the car's own (2 holds the "
+        "heading feedback's bandwidth k_e l_d v / L; 3, tuned on the generator's tuning "
+        "seeds at --v-max 10: 2 spun the car more, 4 left it 0.15 m off its line in long "
+        "bends; no effect at or below k_lateral_speed_mps)",
     )
     lookahead_base_m: float = Field(0.0, ge=0.0, le=10.0, description="tracker: l_0 [m]")
     lookahead_time_s: float = Field(

@@ -126,13 +126,14 @@ def test_the_reserves_steering_cost_is_in_the_objective_above_its_speed_only() -
 
 
 def test_the_default_reserve_acts_at_ten_metres_per_second_only() -> None:
-    """``[planner.raceline]``'s default reserve starts at the paper's 4.18 m/s cap: capped
-    there, the raceline's line is the line of before (its cache key); at --v-max 10 it is
-    on, with its steering cost and margin."""
+    """``[planner.raceline]``'s default reserve acts on lines capped above the paper's
+    4.18 m/s: capped there, the raceline's line is the line of before (its cache key); at
+    --v-max 10 it is on, at every speed of the line, with the whole ellipse for the front,
+    0.8 of it for the rear, the yaw bound, the steering cost and the margin."""
     o = RacelineSettings()
     assert o.min_time_reserve_speed_mps == 4.18
     assert not min_time_settings(o).reserve_active
     fast = min_time_settings(o.model_copy(update={"v_max_mps": 10.0}))
-    assert fast.reserve_active
-    assert (fast.reserve_fraction, fast.reserve_steering_weight_s, fast.reserve_margin_m) == (
-        0.9, 0.1, 0.1)
+    assert fast.reserve_active and fast.reserve_start_mps == 0.0
+    assert (fast.reserve_fraction, fast.reserve_rear_fraction, fast.reserve_yaw_pole_per_s,
+            fast.reserve_steering_weight_s, fast.reserve_margin_m) == (1.0, 0.8, 2.0, 0.1, 0.1)

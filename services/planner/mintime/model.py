@@ -51,6 +51,7 @@ import numpy as np
 from shared.config.vehicle import DynamicVehicleParams
 from shared.vehicle import CASADI_OPS, GRAVITY_MPS2, axle_peak_friction, make_dynamic_derivatives
 from shared.vehicle.tyres import pacejka_peak_slip_rad
+from shared.vehicle.yaw_stability import yaw_pole_margin
 
 STATE_NAMES = ("n_m", "xi_rad", "v_mps", "beta_rad", "r_radps", "delta_rad")
 INPUT_NAMES = ("steering_rate_radps", "accel_mps2")
@@ -90,6 +91,13 @@ class SpatialModel:
         reserve: the high-speed reserve ``(v_r [m/s], w [m/s], f_r [-])`` of
             ``MinTimeSettings`` (``reserve_speed_mps``, ``reserve_width_mps``,
             ``reserve_fraction``), or None: ``use_bound``.
+        yaw_stability: ``(x, u) -> margin [-]``, >= 0 where the car's yaw under the
+            acceleration ``a`` diverges no faster than the bound ``MinTimeSettings
+            .reserve_yaw_pole_per_s`` (``shared.vehicle.yaw_stability.yaw_pole_margin``),
+            or None: no such bound.
+        rear_reserve_fraction: the rear axle's share of its ellipse's radius at speed
+            with the reserve (a saturated rear spins the car, a saturated front pushes it
+            wide), or None: the reserve's ``f_r`` for both axles.
     """
 
     ode: ca.Function
@@ -101,15 +109,22 @@ class SpatialModel:
     servo_time_constant_s: float | None = None
     ellipse_use_max: float = 1.0
     reserve: tuple[float, float, float] | None = None
+    yaw_stability: ca.Function | None = None
+    rear_reserve_fraction: float | None = None
 
-    def use_bound(self, v_mps: ca.MX | ca.SX | float) -> ca.MX | ca.SX | float:
-        """Bound on each axle's ellipse use [-] at speed `v_mps` [m/s]: ``ellipse_use_max``,
-        times ``1 - (1 - f_r^2) S((v - v_r) / w)`` with the reserve (``S`` the smoothstep
-        ``3 x^2 - 2 x^3`` of x clipped to [0, 1]: 1 up to ``v_r``, ``f_r^2`` from ``v_r +
-        w`` on)."""
+    def use_bound(
+        self, v_mps: ca.MX | ca.SX | float, rear: bool = False
+    ) -> ca.MX | ca.SX | float:
+        """Bound on the front (`rear`: the rear) axle's ellipse use [-] at speed `v_mps`
+        [m/s]: ``ellipse_use_max``, times ``1 - (1 - f_r^2) S((v - v_r) / w)`` with the
+        reserve (``S`` the smoothstep ``3 x^2 - 2 x^3`` of x clipped to [0, 1]: 1 up to
+        ``v_r``, ``f_r^2`` from ``v_r + w`` on; ``f_r`` the rear's own share for the rear
+        when ``rear_reserve_fraction`` is set)."""
         if self.reserve is None:
             return self.ellipse_use_max
         v_r, width, f_r = self.reserve
+        if rear and self.rear_reserve_fraction is not None:
+            f_r = self.rear_reserve_fraction
         ramp = reserve_ramp(v_mps, v_r, width)
         return self.ellipse_use_max * (1.0 - (1.0 - f_r * f_r) * ramp)
 
@@ -137,11 +152,15 @@ def spatial_model(
     slip_fraction: float = 1.0,
     ellipse_fraction: float = 1.0,
     reserve: tuple[float, float, float] | None = None,
+    yaw_pole_per_s: float | None = None,
+    rear_reserve_fraction: float | None = None,
 ) -> SpatialModel:
     """The functions of `p`'s car along a reference (module docstring); Pacejka tyres keep
     their slip within `slip_fraction` of the peak slip and their force within
     `ellipse_fraction` of the ellipse, and any friction-limited tyre the high-speed
-    `reserve` ``(v_r [m/s], w [m/s], f_r [-])`` (``MinTimeSettings``; None: none)."""
+    `reserve` ``(v_r [m/s], w [m/s], f_r [-])`` (``MinTimeSettings``; None: none) and, with
+    it, the yaw's divergence under braking within `yaw_pole_per_s` [1/s] (None: none) and
+    the rear's own share `rear_reserve_fraction` (None: the reserve's)."""
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
     kappa = ca.SX.sym("kappa")
@@ -202,9 +221,16 @@ def spatial_model(
     if p.tyre_model == "pacejka":  # its F_y,max = sqrt((mu F_z)^2 - F_x^2) is steep at 0
         a_lim = min(a_lim, (1.0 - PACEJKA_ACCEL_BACKOFF) * min(mu_f, mu_r) * GRAVITY_MPS2)
     use_max = ellipse_fraction**2 if p.tyre_model == "pacejka" else 1.0
+    yaw = None
+    if limited and reserve is not None and yaw_pole_per_s is not None:
+        yaw = ca.Function(
+            "mintime_yaw_stability", [x, u],
+            [yaw_pole_margin(p, v, a, yaw_pole_per_s, CASADI_OPS)], ["x", "u"], ["margin"],
+        )
     return SpatialModel(
         ode, tyres, footprint, limited, peak, a_lim, servo_reach(p), use_max,
-        reserve if limited else None,
+        reserve if limited else None, yaw,
+        rear_reserve_fraction if limited and reserve is not None else None,
     )
 
 

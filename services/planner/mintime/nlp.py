@@ -184,15 +184,16 @@ def transcribe(
     v_max: float,
     v_min: float,
     margin: float,
-    speed_reserve: tuple[float, float, float, float] | None = None,
+    speed_reserve: tuple[float, ...] | None = None,
 ) -> Transcription:
     """The collocation NLP of the lap (see ``services.planner.mintime.ocp``).
 
-    `speed_reserve` ``(v_r [m/s], w [m/s], k [s], m_r [m])``: the high-speed reserve's
-    steering-rate cost ``k h sum_k S_k (sv_k / sv_max)^2`` with ``S_k`` the reserve's ramp
-    (``model.reserve_ramp``) at interval k's starting speed, and its margin: the footprint
-    ``m_r S`` further inside the boundaries at each node (S at the node's speed); None:
-    neither (k = 0, m_r = 0: that one not)."""
+    `speed_reserve` ``(v_r [m/s], w [m/s], k [s], m_r [m][, v_m [m/s]])``: the high-speed
+    reserve's steering-rate cost ``k h sum_k S_k (sv_k / sv_max)^2`` with ``S_k`` the
+    reserve's ramp (``model.reserve_ramp``) from ``v_r`` at interval k's starting speed, and
+    its margin: the footprint ``m_r S_m`` further inside the boundaries at each node
+    (``S_m`` the ramp from ``v_m``, default ``v_r``, at the node's speed); None: neither
+    (k = 0, m_r = 0: that one not)."""
     n, h, d = g.n, g.h, len(RADAU_TAU)
     c_mat, b_vec = radau_matrices(RADAU_TAU)
     sx, su = state_scale(p, v_max), input_scale(p, m)
@@ -226,7 +227,7 @@ def transcribe(
     # the interval's own input: at a node the input jumps, and both sides must hold
     start_states = ca.horzcat(states[:, d * n - 1], states[:, (d - 1) * n : d * n - 1])
     if speed_reserve is not None and speed_reserve[2] > 0.0:
-        v_r, width, weight, _m = speed_reserve
+        v_r, width, weight = speed_reserve[:3]
         ramp = reserve_ramp(start_states[V, :], v_r, width)
         reg += weight * h * ca.sum2(ramp * us[0, :] ** 2)
     path_x = ca.horzcat(states, start_states)
@@ -238,10 +239,14 @@ def transcribe(
         lbg.append(np.full(2 * n_path, -np.inf))
         ubg.append(np.full(2 * n_path, m.ellipse_use_max))
     elif m.friction_limited:  # the high-speed reserve: the bound falls with the speed
-        bound = m.use_bound(path_x[V, :])
-        g_parts.append(ca.vec(tyres[0:2, :] - ca.vertcat(bound, bound)))
+        bounds = ca.vertcat(m.use_bound(path_x[V, :]), m.use_bound(path_x[V, :], rear=True))
+        g_parts.append(ca.vec(tyres[0:2, :] - bounds))
         lbg.append(np.full(2 * n_path, -np.inf))
         ubg.append(np.zeros(2 * n_path))
+    if m.yaw_stability is not None:  # the yaw's divergence under braking bounded
+        g_parts.append(ca.vec(m.yaw_stability.map(n_path)(path_x, path_u)))
+        lbg.append(np.zeros(n_path))
+        ubg.append(np.full(n_path, np.inf))
     if m.peak_slip_rad is not None:
         g_parts.append(ca.vec(tyres[2:4, :]))
         peak = np.tile(np.asarray(m.peak_slip_rad), n_path)
@@ -261,8 +266,9 @@ def transcribe(
     corners = m.footprint.map(n)(end_states, k_front, k_rear)
     w_l_next, w_r_next = np.roll(g.w_left, -1), np.roll(g.w_right, -1)
     if speed_reserve is not None and speed_reserve[3] > 0.0:  # a wider tube at speed
-        v_r, width, _k, m_r = speed_reserve
-        extra = ca.repmat(m_r * reserve_ramp(end_states[V, :], v_r, width), 4, 1)
+        v_r, width, _k, m_r = speed_reserve[:4]
+        v_m = speed_reserve[4] if len(speed_reserve) > 4 else v_r
+        extra = ca.repmat(m_r * reserve_ramp(end_states[V, :], v_m, width), 4, 1)
         g_parts += [ca.vec(corners + extra), ca.vec(corners - extra)]
         lbg += [np.full(4 * n, -np.inf), np.repeat(-(w_r_next - margin), 4)]
         ubg += [np.repeat(w_l_next - margin, 4), np.full(4 * n, np.inf)]

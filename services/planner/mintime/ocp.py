@@ -129,6 +129,21 @@ class MinTimeSettings:
             0.1 s while braking at 9-10 m/s, and the car spins); 0: none.
         reserve_margin_m: with the reserve, the footprint keeps ``m_r S(v)`` [m] more
             margin (the tracking error's tube grows with the speed); 0: none.
+        reserve_yaw_pole_per_s: with the reserve, a friction-limited car's yaw, linearised
+            about straight running at the line's speed and acceleration, diverges no faster
+            than this [1/s] (``shared.vehicle.yaw_stability``: braking hard above about
+            4.4 m/s the gym car oversteers, at 10 m/s its yaw diverges at 8 1/s, faster
+            than the tracker's delays catch); None: no bound.
+        reserve_from_mps: with the reserve (a line capped above ``reserve_speed_mps``), the
+            speed [m/s] from which its grip part fades in over ``reserve_width_mps`` (the
+            ellipse shares and the steering-rate cost; the margin, the tracking error's
+            tube, still grows from ``reserve_speed_mps``); None: ``reserve_speed_mps``. On a line
+            capped at 10 m/s the tight bends' apexes are at 4-5 m/s, entered braking from
+            7-10: with the reserve faded in from 4.18 m/s they were at the full ellipse and
+            the car spun in 8 of 15 of the generator's tracks (issue 21).
+        reserve_rear_fraction: with the reserve, the rear axle's own share of its
+            ellipse's radius (a saturated rear spins the car; a saturated front pushes it
+            wide, which the tracker's outward cut catches); None: ``reserve_fraction``.
     """
 
     v_max_mps: float = 4.18
@@ -144,11 +159,25 @@ class MinTimeSettings:
     reserve_width_mps: float = 2.0
     reserve_steering_weight_s: float = 0.0
     reserve_margin_m: float = 0.0
+    reserve_yaw_pole_per_s: float | None = None
+    reserve_rear_fraction: float | None = None
+    reserve_from_mps: float | None = None
 
     @property
     def reserve_active(self) -> bool:
         """Whether the high-speed reserve changes the problem (a speed below the top)."""
         return self.reserve_speed_mps is not None and self.reserve_speed_mps < self.v_max_mps
+
+    @property
+    def reserve_start_mps(self) -> float:
+        """The speed [m/s] from which an active reserve fades in (``reserve_from_mps``,
+        else ``reserve_speed_mps``)."""
+        start = self.reserve_from_mps
+        if start is None:
+            start = self.reserve_speed_mps
+        if start is None:
+            raise ValueError("no high-speed reserve: reserve_speed_mps is None")
+        return float(start)
 
     def __post_init__(self) -> None:
         checks = (
@@ -167,6 +196,13 @@ class MinTimeSettings:
         )
         if self.reserve_speed_mps is not None:
             checks += (("reserve_speed_mps", lambda v: 0.0 < v <= 100.0, "in (0, 100] m/s"),)
+        if self.reserve_from_mps is not None:
+            checks += (("reserve_from_mps", lambda v: 0.0 <= v <= 100.0, "in [0, 100] m/s"),)
+        if self.reserve_rear_fraction is not None:
+            checks += (("reserve_rear_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),)
+        if self.reserve_yaw_pole_per_s is not None:
+            checks += (("reserve_yaw_pole_per_s", lambda v: 0.0 <= v <= 100.0,
+                        "in [0, 100] 1/s"),)
         for name, ok, what in checks:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
@@ -288,14 +324,15 @@ def solve_min_time(
             f"{cfg.margin_m:.3f} m margin",
         )
     reserve = (
-        (cfg.reserve_speed_mps, cfg.reserve_width_mps, cfg.reserve_fraction)
+        (cfg.reserve_start_mps, cfg.reserve_width_mps, cfg.reserve_fraction)
         if cfg.reserve_active
         else None
     )
-    model = spatial_model(vehicle, cfg.slip_fraction, cfg.ellipse_fraction, reserve)
+    model = spatial_model(vehicle, cfg.slip_fraction, cfg.ellipse_fraction, reserve,
+                          cfg.reserve_yaw_pole_per_s, cfg.reserve_rear_fraction)
     steering = (
-        (cfg.reserve_speed_mps, cfg.reserve_width_mps, cfg.reserve_steering_weight_s,
-         cfg.reserve_margin_m)
+        (cfg.reserve_start_mps, cfg.reserve_width_mps, cfg.reserve_steering_weight_s,
+         cfg.reserve_margin_m, cfg.reserve_speed_mps)
         if cfg.reserve_active
         and (cfg.reserve_steering_weight_s > 0.0 or cfg.reserve_margin_m > 0.0)
         else None

@@ -99,6 +99,9 @@ def min_time_settings(
         reserve_width_mps=settings.min_time_reserve_width_mps,
         reserve_steering_weight_s=settings.min_time_reserve_steering_weight_s,
         reserve_margin_m=settings.min_time_reserve_margin_m,
+        reserve_yaw_pole_per_s=settings.min_time_reserve_yaw_pole_per_s,
+        reserve_rear_fraction=settings.min_time_reserve_rear_fraction,
+        reserve_from_mps=settings.min_time_reserve_from_mps,
     )
 
 

@@ -59,12 +59,16 @@ CACHE_SUBDIR = "mintime"
 CONFIG_PLACEHOLDER = "[--config FILE]"
 #: Settings added after laps were cached: at these values they stay out of the key, so the
 #: laps stored before them keep their keys (the same problem, the same lap).
-KEY_FREE_DEFAULTS: dict[str, object] = {"slip_fraction": 1.0, "ellipse_fraction": 1.0}
+KEY_FREE_DEFAULTS: dict[str, object] = {"slip_fraction": 1.0, "ellipse_fraction": 1.0,
+                                        "reserve_yaw_pole_per_s": None,
+                                        "reserve_rear_fraction": None,
+                                        "reserve_from_mps": None}
 #: The high-speed reserve's settings: in the key only when the reserve acts
 #: (``MinTimeSettings.reserve_active``, a friction-limited tyre), so every lap whose top speed
 #: is at or below its speed (the 4.18 m/s cap's) keeps its key.
 RESERVE_FIELDS = ("reserve_speed_mps", "reserve_fraction", "reserve_width_mps",
-                  "reserve_steering_weight_s", "reserve_margin_m")
+                  "reserve_steering_weight_s", "reserve_margin_m", "reserve_yaw_pole_per_s",
+                  "reserve_rear_fraction", "reserve_from_mps")
 
 
 def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings) -> str:
@@ -80,7 +84,7 @@ def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSett
         for name in RESERVE_FIELDS:  # no high-speed reserve: the problem (and key) of before
             del fields[name]
     for name, default in KEY_FREE_DEFAULTS.items():  # laps solved before these existed
-        if fields.get(name) == default:
+        if name in fields and fields[name] == default:
             del fields[name]
     h.update(json.dumps(fields, sort_keys=True).encode())
     if servo_reach(vehicle) is not None:  # laps of a slow servo solved with its reach
