@@ -199,3 +199,39 @@ def test_a_linear_car_joins_at_its_line_s_speeds_into_a_bend_tighter_than_its_lo
     off, top, _ = race_from(planner, track, cfg, 4.03, 3.0)
     assert off == 0
     assert top <= 4.18 * 1.01
+
+
+def test_a_standing_start_at_ten_metres_per_second_joins_without_a_slide() -> None:
+    """gen-1006 at ``--v-max 10`` (a tuning track), from rest 0.3 m past the start line:
+    the line crosses the track there at 0.2 rad and the car accelerates to 6-7 m/s within
+    the join. With the feedback scheduled on the plan's 6-8 m/s (a tenth of its gain) and
+    the join at full speed, the car ran 0.5 m past the blend, the grip adaptation took that
+    for a slide and cut the race to 0.7 of the line. Now the join is driven at the speed
+    of the tracker's full feedback, the feedback at the car's own speed: no cut in the out
+    lap and the first flying lap, and no off-track event."""
+    from benchmarks.robustness import config_for
+    from benchmarks.standing_starts import race_from
+    from services.planner.mintime.store import ensure_artefacts
+    from services.planner.raceline.planner import RacelinePlanner
+    from shared.config.methods import RACELINE
+    from shared.track import load_track
+
+    track = load_track("gen:1006")
+    cfg = config_for("default", 10.0)
+    assert cfg.planner.raceline.v_max_mps == pytest.approx(10.0, abs=0.5)
+    ensure_artefacts(RACELINE, track, cfg.planner, cfg.vehicle, progress=None)
+    planner = RacelinePlanner(track, cfg.planner, cfg.curvature, vehicle=cfg.vehicle)
+    cuts = []
+    adapt = planner._adapt_grip
+
+    def watched(e_line_m: float) -> None:
+        before = planner.speed_scale
+        adapt(e_line_m)
+        if planner.speed_scale < before:
+            cuts.append((planner._s_line, e_line_m))
+
+    planner._adapt_grip = watched
+    off, top, _ = race_from(planner, track, cfg, 0.3, 16.0)
+    assert cuts == []
+    assert off == 0
+    assert top > 7.0  # it raced at speed, not crept

@@ -281,14 +281,14 @@ def test_above_its_speed_the_outward_cut_gives_up_drive_but_never_brakes() -> No
 
 
 def test_the_schedules_exponent() -> None:
-    """``k_lateral_speed_exponent`` n: ``k_e (v_k / v)^n`` above v_k (default 4), k_e at
+    """``k_lateral_speed_exponent`` n: ``k_e (v_k / v)^n`` above v_k (default 3), k_e at
     and below it whatever n."""
     g = TrackerGains(k_lateral_radpm=0.5, k_lateral_speed_mps=4.0, k_lateral_speed_exponent=4.0)
     assert g.k_lateral_at(4.0) == 0.5 and g.k_lateral_at(2.0) == 0.5
     assert g.k_lateral_at(8.0) == pytest.approx(0.5 / 16.0)
     o = SETTINGS.raceline
-    assert o.k_lateral_speed_exponent == 4.0
-    assert tracker_gains(o).k_lateral_at(10.0) == pytest.approx(o.k_lateral_radpm * 0.418**4)
+    assert o.k_lateral_speed_exponent == 3.0
+    assert tracker_gains(o).k_lateral_at(10.0) == pytest.approx(o.k_lateral_radpm * 0.418**3)
 
 
 def test_a_slower_plan_keeps_the_fourth_power_of_the_plans_dynamic_part() -> None:
@@ -315,3 +315,30 @@ def test_a_slower_plan_keeps_the_fourth_power_of_the_plans_dynamic_part() -> Non
     assert slow.yaw_rad == pytest.approx(bare.yaw_rad + 0.8**4 * dyn_yaw)
     with pytest.raises(ValueError, match="share"):
         plan.slower(0.0, CAR)
+
+
+def test_the_feedback_is_scheduled_on_the_cars_own_speed_when_it_is_given() -> None:
+    """``speed_mps``: a car far below its plan (joining from rest a line planned at 8 m/s)
+    has the feedback of its own speed, ``k_e(min(v_p, v))``; at or above the plan's, or
+    with both at or below ``k_lateral_speed_mps``, the plan's as before."""
+    tr = circle(20.0)
+    n = tr.n_points
+    plan = ReferenceLap.from_path(tr, tr.signed_curvature(), np.full(n, 8.0), CAR)
+    gains = TrackerGains(k_lateral_radpm=0.5, k_lateral_speed_mps=4.18,
+                         k_lateral_speed_exponent=3.0)
+    timing = TrackerTiming(0.05, 0.0, 0.0)
+    s_car = 3.0
+    x, y = tr.point_at(s_car)
+    heading = float(tr.heading_at(s_car))
+    px, py = float(x) + 0.2 * math.sin(heading), float(y) - 0.2 * math.cos(heading)
+    yaw = plan.at("yaw", s_car)
+
+    def steer(**kw) -> float:
+        t = Tracker.for_vehicle(plan, timing, gains, CAR)
+        return t.command(px, py, yaw, s_hint_m=s_car, **kw).steering_rad
+
+    ff = steer(speed_mps=8.0) - gains.k_lateral_at(8.0) * 0.2  # the feed-forward (e_la = e)
+    assert steer() == pytest.approx(steer(speed_mps=8.0)) == pytest.approx(steer(speed_mps=9.0))
+    assert steer(speed_mps=2.0) - ff == pytest.approx(0.5 * 0.2, rel=1e-6)
+    assert steer(speed_mps=6.0) - ff == pytest.approx(gains.k_lateral_at(6.0) * 0.2, rel=1e-6)
+    assert steer(speed_mps=2.0) - ff > 5.0 * (steer() - ff)

@@ -50,7 +50,7 @@ import casadi as ca
 import numpy as np
 
 from services.planner.interface import BRAKING, RECOVERING, SOLVED, DriveCommand, SolveResult
-from services.planner.mintime.model import servo_reach
+from services.planner.mintime.model import reserve_ramp, servo_reach
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mintime.requests import (
     min_time_settings,
@@ -704,12 +704,13 @@ class RacelinePlanner:
         scales = FEED_FORWARD_SCALES
         i = min(int(np.searchsorted(scales, ratio, side="right")) - 1, len(scales) - 2)
         lo = self._slow_trackers[i].command(cx, cy, yaw, hint, offset_m=self._offset,
-                                            offset_slope=slope)
+                                            offset_slope=slope, speed_mps=self._travel_mps)
         if i + 1 == len(scales) - 1:
             hi_rad = line_rad
         else:
             hi = self._slow_trackers[i + 1].command(cx, cy, yaw, hint, offset_m=self._offset,
-                                                    offset_slope=slope)
+                                                    offset_slope=slope,
+                                                    speed_mps=self._travel_mps)
             hi_rad = hi.steering_rad
         w = (ratio - scales[i]) / (scales[i + 1] - scales[i])
         return (1.0 - w) * lo.steering_rad + w * hi_rad
@@ -852,7 +853,8 @@ class RacelinePlanner:
                 fast = self.overtake.lateral_rate_mps * self.settings.dt_s
                 self._offset = before + min(max(target - before, -fast), fast)
         tc = self.tracker.command(cx, cy, yaw_rad, hint, offset_m=self._offset,
-                                  speed_scale=self.tracker_scale, offset_slope=slope)
+                                  speed_scale=self.tracker_scale, offset_slope=slope,
+                                  speed_mps=self._travel_mps)
         self._s_line = tc.s_m
         self._cautious_start(tc.s_m)
         yaw_error = self._yaw_error(tc.s_m)
@@ -1087,9 +1089,29 @@ class RacelinePlanner:
         limit = o.grip_error_m
         if self._start_phase is not None:  # the cautious out lap judges more closely
             limit = min(limit, o.start_grip_error_m)
+        limit += self._speed_tube_m()
         if o.grip_error_m > 0.0 and abs(e_line_m) > limit:
             self.speed_scale = max(o.grip_min_scale, self.speed_scale * (1.0 - o.grip_step))
             self._start_phase = None  # the car slid: no cautious start to end
+
+    def _speed_tube_m(self) -> float:
+        """The line's high-speed tube at the car's planned speed [m]: the footprint margin
+        its minimum-time lap keeps there beyond the low-speed one
+        (``min_time_reserve_margin_m`` times the reserve's ramp at the plan's speed at the
+        tracker's scale; 0 at and below ``min_time_reserve_speed_mps``, so nothing on a
+        line capped there). A tracking error within it is what the line made room for,
+        not a slide: at 7 m/s on a long bend the car held 0.15 m inside its line at the
+        cautious start's scale, and the cut that ended the start left the whole race at
+        0.78 of the line (gen-1001 at ``--v-max 10``)."""
+        o = self.options
+        lap = self.raceline.min_time
+        if (lap is None or o.min_time_reserve_margin_m <= 0.0 or self._s_line is None
+                or o.min_time_reserve_speed_mps is None
+                or o.min_time_reserve_speed_mps >= lap.v_max_mps):
+            return 0.0
+        v = self.tracker_scale * float(self.raceline.reference.at("v", self._s_line))
+        ramp = float(reserve_ramp(v, o.min_time_reserve_speed_mps, o.min_time_reserve_width_mps))
+        return o.min_time_reserve_margin_m * ramp
 
     def _yaw_error(self, s_line_m: float) -> float | None:
         """How far the car's yaw rate over the last period was from its plan's at the car's
@@ -1180,7 +1202,11 @@ class RacelinePlanner:
         cap = math.sqrt(grip / k_max) if k_max > 1e-6 else math.inf
         # no lead over the line's top speed: the car is not where the plan's clock expects
         # it, and the lead's 0.3-0.4 m/s took it past the cap
-        return steer, min(cap, self._top_speed_mps)
+        cap = min(cap, self._top_speed_mps)
+        full_gain = self.tracker.gains.k_lateral_speed_mps
+        if full_gain is not None:  # ... nor above the tracker's full feedback
+            cap = min(cap, full_gain)
+        return steer, cap
 
     @cached_property
     def _top_speed_mps(self) -> float:

@@ -514,6 +514,7 @@ class Tracker:
         offset_m: float = 0.0,
         speed_scale: float = 1.0,
         offset_slope: float = 0.0,
+        speed_mps: float | None = None,
     ) -> TrackerCommand:
         """The command from the CoG pose (x, y [m], yaw [rad]); see the module docstring.
 
@@ -532,6 +533,13 @@ class Tracker:
                 join, ``raceline.join``): the look-ahead's heading error is taken from the
                 offset path (``atan`` of it turned right of the path's heading); 0: a
                 parallel path.
+            speed_mps: the car's own speed [m/s] when known (from its poses): ``k_e`` is
+                scheduled on ``min(v_p, speed_mps)``, the speed the feedback acts at. A car
+                far below its plan (a standing start: from rest onto a line planned at
+                6-10 m/s) has the feedback of its own speed, not the plan's: on the plan's
+                the gain fell to a tenth and the car, joining from rest at ``--v-max 10``,
+                ran 0.5 m past its line's blend (gen-1006). None: ``v_p``. No effect at
+                or below ``k_lateral_speed_mps``.
         """
         p = self.plan
         g = self.gains
@@ -551,7 +559,8 @@ class Tracker:
         t0 = p.at("t", s)
         w_steer, w_speed = c * self._w_steer, c * self._w_speed  # in the plan's time
         s_steer = p.s_at_time(t0 + w_steer)
-        steering = float(np.mean(p.at("delta", s_steer))) + g.k_lateral_at(v_p) * e_la
+        v_gain = v_p if speed_mps is None else min(v_p, max(float(speed_mps), 0.0))
+        steering = float(np.mean(p.at("delta", s_steer))) + g.k_lateral_at(v_gain) * e_la
         if tau > 0.0:  # the servo's lag inverted: its target leads by tau times the rate
             h = LAG_RATE_STEP_S
             ahead = p.at("delta", p.s_at_time(t0 + w_steer + c * h))
