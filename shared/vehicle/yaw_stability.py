@@ -36,6 +36,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from shared.config.vehicle import DynamicVehicleParams
 from shared.vehicle.ops import FLOAT_OPS, Ops
 from shared.vehicle.single_track import GRAVITY_MPS2, normal_loads
@@ -84,8 +86,6 @@ def yaw_pole_margin(
 def yaw_pole_per_s(p: DynamicVehicleParams, v_mps: float, a_mps2: float) -> float:
     """The larger real part [1/s] of the linearised yaw modes at `v_mps` [m/s] (> 0) and
     `a_mps2` [m/s^2] (positive: the yaw diverges). Floats only."""
-    import numpy as np
-
     m, iz, lf, lr = p.mass_kg, p.yaw_inertia_kgm2, p.lf_m, p.lr_m
     cf, cr = axle_cornering_stiffness(p, a_mps2)
     v = float(v_mps)
