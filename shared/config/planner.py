@@ -426,6 +426,33 @@ class RacelineSettings(Section):
         description="cautious out lap: the grip adaptation's grip_error_m while it lasts "
         "(the car below its plan strays less; a slide caught at 0.15 m instead of 0.3) [m]",
     )
+    steering_learning_gain: float = Field(
+        0.5, ge=0.0, le=1.0,
+        description="learning the line's steering lap by lap (iterative learning control, "
+        "services/planner/raceline/learning.py): after each lap the feedback steering the "
+        "tracker gave at each place of the line, times this gain, is added to a correction "
+        "of the feed-forward there (for one plan at one speed scale: a cut or a re-plan "
+        "starts it afresh; not where the line is planned above k_lateral_speed_mps, nor "
+        "once the grip adaptation has cut the speeds); 0: off [1]. Tuned on the "
+        "generator's tuning seeds: 0.8 spun the identified car on gen:1005",
+    )
+    steering_learning_smooth_m: float = Field(
+        0.5, ge=0.0, le=5.0,
+        description="learning the line's steering: the width (sigma) of the smoothing of "
+        "each lap's correction along the line [m]",
+    )
+    steering_learning_lead_s: float = Field(
+        0.2, ge=0.0, le=1.0,
+        description="learning the line's steering: a tick's feedback corrects the "
+        "feed-forward this long before where its steering acted [s] (the error it answers "
+        "was caused that much earlier, through the servo and the car's response; at 0 "
+        "the learning put the identified car off map416 in its third lap, 0.1 and 0.2 "
+        "converge, 0.3 left a linear car off the track once)",
+    )
+    steering_learning_max_rad: float = Field(
+        0.05, ge=0.0, le=0.5,
+        description="learning the line's steering: the correction's bound [rad]",
+    )
     servo_lag_estimate: bool = Field(
         True,
         description="measure the servo's lag while racing (the yaw response to the steering "

@@ -62,6 +62,7 @@ from services.planner.opponents import OpponentEstimate, predict_on_line
 from services.planner.raceline.grip_profile import GripReplan, line_grip_mps2
 from services.planner.raceline.join import MAX_SLOPE as MAX_JOIN_SLOPE
 from services.planner.raceline.join import LineJoin
+from services.planner.raceline.learning import LearningSettings, StepLearning
 from services.planner.raceline.overtake import FREE, OvertakeParams, OvertakePlan, plan_around
 from services.planner.raceline.servo_lag import (
     ServoLagEstimator,
@@ -69,7 +70,13 @@ from services.planner.raceline.servo_lag import (
     linear_lateral_mps2,
     yaw_lag_table,
 )
-from services.planner.raceline.tracker import ReferenceLap, Tracker, TrackerGains, TrackerTiming
+from services.planner.raceline.tracker import (
+    ReferenceLap,
+    Tracker,
+    TrackerCommand,
+    TrackerGains,
+    TrackerTiming,
+)
 from services.planner.recovery import (
     TELEPORT_JUMP_M,
     HandOver,
@@ -540,6 +547,11 @@ class RacelinePlanner:
         )
         self._stall = StallWatch()
         self._handover = HandOver(handover_accel_mps2(self.vehicle))
+        #: the steering feed-forward's correction learnt lap by lap (``raceline.learning``)
+        self.learning = StepLearning(self.raceline.reference.length_m, LearningSettings(
+            gain=self.options.steering_learning_gain,
+            smooth_m=self.options.steering_learning_smooth_m,
+            max_rad=self.options.steering_learning_max_rad))
         self.reset()
 
     @property
@@ -555,6 +567,7 @@ class RacelinePlanner:
         self.recovery.reset()
         self._stall.reset()
         self._handover.active = False
+        self.learning.clear()
         #: the grip adaptation's speed scale (``step``): 1 until the car strays off the line
         #: (the cautious out lap's start scale on a line the car can drive slower)
         o = self.options
@@ -889,7 +902,18 @@ class RacelinePlanner:
         # the line's own speed command: the grip adaptation's scale is a speed held below
         # the line's too (the tracker's steering is the line's at its own speed)
         line_speed = tc.speed_mps / self.tracker_scale
-        if speed < min(line_speed, self._speed_lim[1]) - SLOW_SPEED_MPS:
+        slow = speed < min(line_speed, self._speed_lim[1]) - SLOW_SPEED_MPS
+        if (self.options.steering_learning_gain > 0.0 and plan is FREE and not slow
+                and self.speed_scale >= 1.0 and self.raceline is self.built_line
+                and self._join is None and self._offset == 0.0 and not self._joining
+                and not self._handover.active):
+            # on the line at its speeds, with the grip it was planned for: the correction
+            # learnt there, and this tick's feedback learnt from (a car the grip
+            # adaptation has cut lacks grip: more steering there only saturates its front;
+            # learning on the identified car's re-planned profiles of the gym car's line
+            # put it off the track 8 -> 16 times in a cell)
+            steering += self._learn_steering(tc)
+        if slow:
             # held below the line's speed (behind a car, joining the line, the hand-over's
             # ramp, a grip adaptation): the steering of the line at that speed; the line's
             # own, for its speed, turned the identified car joining at 2 m/s off the inside
@@ -906,6 +930,22 @@ class RacelinePlanner:
         if on_command is not None:
             on_command(cmd)
         return self._result(cmd, x_m, y_m, yaw_rad, tc.s_m, s_t, e_t, "tracker", t0)
+
+    def _learn_steering(self, tc: TrackerCommand) -> float:
+        """The steering correction learnt where `tc`'s steering acts [rad]
+        (``raceline.learning``), and `tc`'s feedback learnt from; 0 and nothing learnt
+        where the line is planned above ``k_lateral_speed_mps``: there the feedback is
+        scheduled down and does not settle on a feed-forward error within a bend (at
+        ``--v-max 10`` learning there spun the car in 4 of 15 tuning tracks)."""
+        ref = self.raceline.reference
+        v_d = self.tracker_scale * float(ref.at("v", tc.steer_s_m))
+        v_k = self.options.k_lateral_speed_mps
+        if v_k is not None and v_d > v_k + 1e-6:
+            return 0.0
+        self.learning.context((id(ref), self.tracker_scale, self.tracker.timing))
+        lead = v_d * self.options.steering_learning_lead_s
+        self.learning.record(tc.steer_s_m - lead, tc.feedback_rad, v_d * self.settings.dt_s)
+        return self.learning.correction(tc.steer_s_m)
 
     @property
     def replanning(self) -> bool:

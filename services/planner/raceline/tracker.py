@@ -429,6 +429,9 @@ class TrackerCommand:
         e_m: distance from the path [m] (right +); yaw_error_rad: ``psi - psi_p(s)`` [rad].
         accel_mps2: ``a_cmd``, the acceleration asked of the speed loop [m/s^2].
         lookahead_m: ``l_d`` [m].
+        feedback_rad: the feedback part of the steering, ``k_e e_la`` [rad].
+        steer_s_m: the plan's arc length in the middle of the steering window ``W_d``
+            (where this command's steering acts) [m], unwrapped.
     """
 
     speed_mps: float
@@ -438,6 +441,8 @@ class TrackerCommand:
     yaw_error_rad: float
     accel_mps2: float
     lookahead_m: float
+    feedback_rad: float = 0.0
+    steer_s_m: float = 0.0
 
 
 class Tracker:
@@ -560,7 +565,8 @@ class Tracker:
         w_steer, w_speed = c * self._w_steer, c * self._w_speed  # in the plan's time
         s_steer = p.s_at_time(t0 + w_steer)
         v_gain = v_p if speed_mps is None else min(v_p, max(float(speed_mps), 0.0))
-        steering = float(np.mean(p.at("delta", s_steer))) + g.k_lateral_at(v_gain) * e_la
+        feedback = g.k_lateral_at(v_gain) * e_la
+        steering = float(np.mean(p.at("delta", s_steer))) + feedback
         if tau > 0.0:  # the servo's lag inverted: its target leads by tau times the rate
             h = LAG_RATE_STEP_S
             ahead = p.at("delta", p.s_at_time(t0 + w_steer + c * h))
@@ -576,4 +582,5 @@ class Tracker:
             a_cmd += w * (max(a_cmd, min(a_plan, 0.0)) - a_cmd)
         k = self.k_accel if a_cmd >= 0.0 else self.k_brake
         speed = c * float(np.mean(p.at("v", s_speed))) + a_cmd / k
-        return TrackerCommand(speed, steering, s, e_path, dpsi, a_cmd, l_d)
+        s_mid = float(np.atleast_1d(s_steer)[len(np.atleast_1d(s_steer)) // 2])
+        return TrackerCommand(speed, steering, s, e_path, dpsi, a_cmd, l_d, feedback, s_mid)
