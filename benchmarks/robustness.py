@@ -23,10 +23,11 @@ The matrix (``--tracks``, ``--cars``, ``--poses`` narrow it):
 
 A cell is one (track, car, pose); the planners' settings are those of its pose source
 (``services.planner.for_pose_source``: the raceline's margin widened by ``[planner.raceline]
-ekf_margin_m`` / ``lidar_margin_m``); each method races it in the bench's closed loop
-(``services.tools.bench.run_method``: an out lap from standstill, then ``--laps`` flying
-laps). Per method the cell records the mean lap over the simulated car's minimum-time lap at
-the cap (``ratio``), off-track events of the whole run (out lap included), recoveries, spins
+truth_margin_m`` / ``ekf_margin_m`` / ``lidar_margin_m``); each method races it in the
+bench's closed loop (``services.tools.bench.run_method``: an out lap from standstill,
+then ``--laps`` flying laps). Per method the cell records the mean lap over the simulated
+car's minimum-time lap at the cap (``ratio``), off-track events of the whole run (out lap
+included), recoveries, spins
 (``spin_events``: the rear axle's slip angle beyond ``SPIN_SLIP_FACTOR`` x its tyres' peak slip for
 more than ``SPIN_MIN_DURATION_S``; beside it the largest rear slip over that peak; the gym's
 unbounded ``linear`` tyres have no peak: their reference is the largest rear slip of the car's own

@@ -167,6 +167,15 @@ class RacelineSettings(Section):
         "tracking error (2-3 cm outside the line at a bend's entry; tuned on the "
         "generator's TUNING_SEEDS); no effect on the gym car",
     )
+    truth_margin_m: float = Field(
+        0.003, ge=0.0, le=1.0,
+        description="min_time, the planner on exact poses (the bench's --estimator truth): "
+        "this much more margin [m], a tube for the tracker's own error. A line at the "
+        "limit's own margin, followed within millimetres, beat the limit by cutting a few "
+        "millimetres inside it in bends at the speed cap (F1TENTH maps, 0.25 m grid) or "
+        "clipped an apex (gen-1007 on that grid); the other pose sources' tubes hold the "
+        "tracker's error already",
+    )
     ekf_margin_m: float = Field(
         0.02, ge=0.0, le=1.0,
         description="min_time, the planner on the EKF's poses (the bench's --estimator ekf, "

@@ -1,6 +1,6 @@
-"""Every planner that sees estimated poses plans the raceline's line with the pose source's
-margin (``services.planner.for_pose_source`` / ``for_stack``): the bench on
-``--estimator ekf|lidar``, the planner service and ``racestack mintime --for raceline`` on
+"""Every planner plans the raceline's line with the pose source's margin
+(``services.planner.for_pose_source`` / ``for_stack``): the bench on
+``--estimator truth|ekf|lidar``, the planner service and ``racestack mintime --for raceline`` on
 ``[localization] pose_source``; and all of them key the same lap."""
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ from shared.config import config_from_dict
 from shared.config.methods import RACELINE
 
 #: Margins that no default has, so the test sees them arrive.
-MARGINS = {"planner": {"raceline": {"ekf_margin_m": 0.011, "lidar_margin_m": 0.033}}}
+MARGINS = {"planner": {"raceline": {"truth_margin_m": 0.004, "ekf_margin_m": 0.011,
+                                    "lidar_margin_m": 0.033}}}
 
 
 class StoppedError(Exception):
@@ -48,7 +49,7 @@ def test_the_bench_builds_its_planners_for_the_pose_they_see(
                       LoopOptions(laps=1, estimator=estimator), [], 1, figures=False,
                       reference=False)
     base = cfg.planner.raceline.min_time_margin_m
-    want = {"truth": base, "ekf": base + 0.011, "lidar": base + 0.033}[estimator]
+    want = {"truth": base + 0.004, "ekf": base + 0.011, "lidar": base + 0.033}[estimator]
     assert seen == [pytest.approx(want)] and _margin(estimator) == pytest.approx(want)
 
 
@@ -104,7 +105,12 @@ def test_cimpcc_line_reads_its_speed_from_filtered_poses_with_the_source_s_gain(
     gains = {pose: for_pose_source(cfg.planner, pose).cimpcc_line.speed_estimate_gain
              for pose in ("truth", "ekf", "lidar")}
     assert gains == {"truth": 1.0, "ekf": 0.45, "lidar": 0.25}
-    assert for_pose_source(cfg.planner, "truth") is cfg.planner
+    # exact poses: the truth tube, the rest the configuration's own
+    truth = for_pose_source(cfg.planner, "truth")
+    assert truth.model_copy(update={"raceline": cfg.planner.raceline}) == cfg.planner
+    no_tube = cfg.planner.model_copy(update={"raceline": cfg.planner.raceline.model_copy(
+        update={"truth_margin_m": 0.0})})
+    assert for_pose_source(no_tube, "truth") is no_tube
     # the raceline's margin comes along with it, and nothing else changes
     ekf = for_pose_source(cfg.planner, "ekf")
     assert ekf.raceline.min_time_margin_m == pytest.approx(

@@ -53,8 +53,19 @@ def test_the_line_keeps_a_steering_reserve_only_when_asked() -> None:
 
 
 def test_each_pose_source_adds_its_own_margin() -> None:
-    settings = PlannerSettings(raceline=RacelineSettings(ekf_margin_m=0.01, lidar_margin_m=0.03))
+    settings = PlannerSettings(raceline=RacelineSettings(ekf_margin_m=0.01, lidar_margin_m=0.03,
+                                                         truth_margin_m=0.0))
     assert for_pose_source(settings, "truth") is settings
+    # exact poses keep a tube for the tracker's own error (the default's 3 mm): a line at
+    # the limit's own margin, followed within millimetres, beat the limit by cutting inside
+    # it, and the bench flags such a lap
+    assert RacelineSettings().truth_margin_m == pytest.approx(0.003)
+    tube = PlannerSettings(raceline=RacelineSettings(truth_margin_m=0.004))
+    truth = for_pose_source(tube, "truth")
+    assert truth.raceline.min_time_margin_m == pytest.approx(0.024)
+    assert truth.cimpcc_line == tube.cimpcc_line  # the planner's own speed-estimate gain
+    assert min_time_settings(truth.raceline, F1TENTH_GYM).margin_m == pytest.approx(0.024)
+    assert raceline_request(truth).settings.margin_m == pytest.approx(0.024)
     assert for_pose_source(settings, "ekf").raceline.min_time_margin_m == pytest.approx(0.03)
     lidar = for_pose_source(settings, "lidar")
     assert lidar.raceline.min_time_margin_m == pytest.approx(0.05)

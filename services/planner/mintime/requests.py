@@ -19,7 +19,8 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
   ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``
   and its high-speed reserve (``min_time_reserve_speed_mps``, ``_fraction``, ``_width_mps``);
   the margin widened for a slow servo (``servo_margin_m``) and, through
-  ``for_pose_source``, for the pose source (``ekf_margin_m``, ``lidar_margin_m``).
+  ``for_pose_source``, for the pose source (``truth_margin_m``, ``ekf_margin_m``,
+  ``lidar_margin_m``).
 
 ``laps_of(method, settings)`` says which of them a planner method needs. Pure functions:
 no I/O, no solve.
@@ -106,7 +107,7 @@ def min_time_settings(
 
 
 #: The pose sources of ``for_pose_source`` and their margin keys of ``[planner.raceline]``.
-POSE_MARGINS = {"truth": None, "ekf": "ekf_margin_m", "lidar": "lidar_margin_m"}
+POSE_MARGINS = {"truth": "truth_margin_m", "ekf": "ekf_margin_m", "lidar": "lidar_margin_m"}
 #: ... and their ``[planner.cimpcc_line]`` speed-estimate gains (``speed_estimate_gain``).
 POSE_SPEED_GAINS = {"ekf": "ekf_speed_estimate_gain", "lidar": "lidar_speed_estimate_gain"}
 #: The stack's ``[localization] pose_source`` -> the pose source of ``for_pose_source``: an
@@ -141,27 +142,26 @@ def for_stack(settings: PlannerSettings, pose_source: str) -> PlannerSettings:
 def for_pose_source(settings: PlannerSettings, pose: str) -> PlannerSettings:
     """`settings` for a planner that sees poses from `pose` (``POSE_MARGINS``: ``truth``,
     ``ekf``, ``lidar``): the raceline's ``min_time_margin_m`` widened by that source's
-    margin (``ekf_margin_m``, ``lidar_margin_m``), a tube for the localisation error, and
+    margin (``truth_margin_m``: a tube for the tracker's own error; ``ekf_margin_m``,
+    ``lidar_margin_m``: for the localisation error, the tracker's inside them), and
     ``cimpcc-line``'s ``speed_estimate_gain`` that source's (``POSE_SPEED_GAINS``: the
-    speed it reads off consecutive filtered poses leans on its speed loop's prediction);
-    the settings themselves for ``truth``.
+    speed it reads off consecutive filtered poses leans on its speed loop's prediction;
+    exact poses keep the planner's own). The settings themselves when nothing changes.
 
     Raises:
         ValueError: an unknown pose source.
     """
     if pose not in POSE_MARGINS:
         raise ValueError(f"unknown pose source {pose!r}; choose one of {', '.join(POSE_MARGINS)}")
-    key = POSE_MARGINS[pose]
-    if key is None:
-        return settings
     update: dict[str, object] = {}  # the sections (keywords: a field, not the method)
-    extra = float(getattr(settings.raceline, key))
+    extra = float(getattr(settings.raceline, POSE_MARGINS[pose]))
     if extra != 0.0:
         o = settings.raceline
         update.update(raceline=o.model_copy(
             update={"min_time_margin_m": min(o.min_time_margin_m + extra, 1.0)}))
     line = settings.cimpcc_line
-    gain = float(getattr(line, POSE_SPEED_GAINS[pose]))
+    gain_key = POSE_SPEED_GAINS.get(pose)  # exact poses: the planner's own gain
+    gain = line.speed_estimate_gain if gain_key is None else float(getattr(line, gain_key))
     if gain != line.speed_estimate_gain:
         update.update(cimpcc_line=line.model_copy(update={"speed_estimate_gain": gain}))
     return settings.model_copy(update=update) if update else settings

@@ -29,7 +29,8 @@ the car whose laps it judges.
 Pose: ``--estimator`` (truth, ekf, lidar) is the pose the planners see; they are built with
 that pose source's settings (``services.planner.for_pose_source``: the raceline's margin
 widened by ``[planner.raceline] ekf_margin_m`` / ``lidar_margin_m``, the tube of that
-localisation's lateral error), as the stack's planner on that ``[localization] pose_source``.
+localisation's lateral error, or ``truth_margin_m``, the tracker's own), as the stack's
+planner on that ``[localization] pose_source``.
 """
 
 from __future__ import annotations
@@ -375,7 +376,8 @@ def run_bench(
         ref_doc = min_time_reference(track, cfg, ref_lines)
         timings["min-time reference"] = time.perf_counter() - t_start
     # the planners' settings for the pose they see: the raceline's margin widened by the
-    # pose source's tube (``for_pose_source``: [planner.raceline] ekf_margin_m, lidar_margin_m)
+    # pose source's tube (``for_pose_source``: [planner.raceline] truth_margin_m,
+    # ekf_margin_m, lidar_margin_m)
     settings = for_pose_source(cfg.planner, opts.estimator)
     for name in methods:  # the minimum-time laps the planners read (made once, cached)
         with Heartbeat(f"the minimum-time lap {name} races on"):

@@ -271,13 +271,14 @@ def test_the_matrix_and_its_laps(tmp_path: Path) -> None:
                        (CIMPCC_LINE, RACELINE))
     assert len(matrix.cells()) == 4
     # the limits of both simulated cars, the planners' (default) lines once, the raceline's
-    # for each pose source's margin (ekf_margin_m widens it)
+    # for each pose source's margin (truth_margin_m, ekf_margin_m widen it)
     tasks = rb.lap_tasks(matrix)
     uses = sorted(t.use for t in tasks)
     assert uses == sorted([CIMPCC_LINE, RACELINE, RACELINE, "limit", "limit"])
     margins = sorted(t.settings.margin_m for t in tasks if t.use == RACELINE)
     o = rb.config_for("default").planner.raceline
-    assert margins == pytest.approx([o.min_time_margin_m, o.min_time_margin_m + o.ekf_margin_m])
+    assert margins == pytest.approx([o.min_time_margin_m + o.truth_margin_m,
+                                     o.min_time_margin_m + o.ekf_margin_m])
 
 
 @pytest.mark.slow
