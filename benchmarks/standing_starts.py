@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from services.planner import for_pose_source
 from services.planner.interface import PlannerLike
 from services.planner.mintime.store import ensure_artefacts
 from services.planner.registry import PlannerPool
@@ -93,8 +94,9 @@ def run_track(
 ) -> StartsResult:
     """`starts` seeded standing starts of `method` on the track `spec`."""
     track = load_track(spec)
-    ensure_artefacts(method, track, cfg.planner, cfg.vehicle, progress=None)
-    planner = PlannerPool(track, cfg.vehicle).planner(cfg.planner, method, cfg.curvature)
+    settings = for_pose_source(cfg.planner, "truth")  # the bench's: the true pose's tube
+    ensure_artefacts(method, track, settings, cfg.vehicle, progress=None)
+    planner = PlannerPool(track, cfg.vehicle).planner(settings, method, cfg.curvature)
     rng = np.random.default_rng(seed)
     res = StartsResult(track.name, starts, [], 0, 0.0, 0)
     for _ in range(starts):
