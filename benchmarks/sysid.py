@@ -45,7 +45,13 @@ from typing import Any
 
 import numpy as np
 
-from services.planner import PlannerPool, laps_of, make_min_time_lap, request_for
+from services.planner import (
+    PlannerPool,
+    for_pose_source,
+    laps_of,
+    make_min_time_lap,
+    request_for,
+)
 from services.simulator.dynamics import friction_accel_limit
 from services.tools.bench import LoopOptions, SimulatorPlant, race
 from services.tools.bench.closed_loop import run_method
@@ -138,12 +144,14 @@ def race_identified(cfg: RacestackConfig, track_spec: str, method: str, laps: in
     laps completed, the wall times of the lines and the race [s]."""
     track = load_track(track_spec)
     t0 = time.perf_counter()
-    for use in laps_of(method, cfg.planner):  # the lines of the identified car
-        make_min_time_lap(track, *request_for(use, cfg.planner, cfg.vehicle), use=use,
+    # it races on the true pose: the bench's settings for it (the raceline's truth tube)
+    settings = for_pose_source(cfg.planner, "truth")
+    for use in laps_of(method, settings):  # the lines of the identified car
+        make_min_time_lap(track, *request_for(use, settings, cfg.vehicle), use=use,
                           progress=None)
     ref = min_time_reference(track, cfg)  # the true car's limit
     t1 = time.perf_counter()
-    planner = PlannerPool(track, cfg.vehicle).planner(cfg.planner, method, cfg.curvature)
+    planner = PlannerPool(track, cfg.vehicle).planner(settings, method, cfg.curvature)
     run = run_method(method, planner, track, cfg.simulator, LoopOptions(laps=laps))
     entry = results_document(track.name, track.length_m, [run], reference=ref)
     rec = entry["methods"][method]

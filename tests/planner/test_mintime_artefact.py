@@ -280,9 +280,15 @@ def _previous_line(s: PlannerSettings, car: DynamicVehicleParams):
 
 
 def _previous_raceline(s: PlannerSettings, car: DynamicVehicleParams):
-    """How ``RacelinePlanner`` built its lap before the requests module."""
-    lo = max(car.steering_min_rad, s.bounds.delta_rad[0])
-    hi = min(car.steering_max_rad, s.bounds.delta_rad[1])
+    """How ``RacelinePlanner`` built its lap before the requests module (within the
+    planner's bounds: ``steering_range = "bounds"``; the car's own lock, the default since
+    issue #21's fourteenth session, cuts nothing)."""
+    f = s.raceline.min_time_steering_fraction
+    if s.raceline.steering_range == "car":
+        lo, hi = f * car.steering_min_rad, f * car.steering_max_rad
+    else:
+        lo = max(car.steering_min_rad, f * s.bounds.delta_rad[0])
+        hi = min(car.steering_max_rad, f * s.bounds.delta_rad[1])
     if (lo, hi) != (car.steering_min_rad, car.steering_max_rad):
         car = DynamicVehicleParams.model_validate(
             {**car.model_dump(), "steering_min_rad": lo, "steering_max_rad": hi})
@@ -302,7 +308,8 @@ CONFIGS = {
             "bounds": {"delta_rad": [-0.3, 0.35]},
             "cimpcc": {"v_up_mps": [3.9, 1.5]},
             "cimpcc_line": {"grip_fraction": 0.93, "v_max_mps": 4.5, "line_margin_m": 0.05},
-            "raceline": {"v_max_mps": 4.0, "ds_m": 0.2, "min_time_margin_m": 0.04},
+            "raceline": {"v_max_mps": 4.0, "ds_m": 0.2, "min_time_margin_m": 0.04,
+                         "steering_range": "bounds", "min_time_steering_fraction": 1.0},
         },
         "vehicle": {"mu": 0.9, "steering_max_rad": 0.33},
     },

@@ -218,10 +218,10 @@ def circle_lap(track: Track, radius: float, v: float, delta: float) -> MinTimeLa
     )
 
 
-def test_the_default_line_is_the_min_time_lap_planned_within_the_steering_bounds() -> None:
-    """``line = "min_time"``: the loader is asked for the car with the planner's steering
-    range and ``[planner.raceline]``'s top speed, grid and margin; the line, its speeds
-    and its steering become the raceline and the tracker's plan."""
+def test_the_default_line_is_the_min_time_lap_planned_within_the_car_s_lock() -> None:
+    """``line = "min_time"``: the loader is asked for the car with its own steering range
+    (``steering_range = "car"``) and ``[planner.raceline]``'s top speed, grid and margin;
+    the line, its speeds and its steering become the raceline and the tracker's plan."""
     tr = circle(3.0, n=300, width=0.6)
     calls: list = []
 
@@ -235,16 +235,10 @@ def test_the_default_line_is_the_min_time_lap_planned_within_the_steering_bounds
     planner = RacelinePlanner(tr, settings, min_time_loader=loader)
     ((track, car, mt),) = calls
     assert track is tr
-    assert (car.steering_min_rad, car.steering_max_rad) == settings.bounds.delta_rad
-    assert (
-        car.model_copy(
-            update={
-                "steering_min_rad": F1TENTH_GYM.steering_min_rad,
-                "steering_max_rad": F1TENTH_GYM.steering_max_rad,
-            }
-        )
-        == F1TENTH_GYM
-    )
+    f = settings.raceline.min_time_steering_fraction  # the tracker's reserve of the lock
+    assert (car.steering_min_rad, car.steering_max_rad) == pytest.approx(
+        (f * F1TENTH_GYM.steering_min_rad, f * F1TENTH_GYM.steering_max_rad))
+    assert planner._delta_lim == (F1TENTH_GYM.steering_min_rad, F1TENTH_GYM.steering_max_rad)
     assert mt == min_time_settings(settings.raceline)
     assert (mt.v_max_mps, mt.ds_m, mt.margin_m) == (4.18, 0.1, 0.02)
     rl = planner.raceline

@@ -9,7 +9,11 @@ import math
 import pytest
 
 from services.planner import for_pose_source, raceline_request, servo_reach
-from services.planner.mintime.requests import POSE_MARGINS, min_time_settings
+from services.planner.mintime.requests import (
+    POSE_MARGINS,
+    min_time_settings,
+    raceline_steering_range,
+)
 from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED
 
@@ -27,12 +31,52 @@ def test_a_slow_servo_widens_the_line_s_margin_and_the_gym_car_keeps_its_own() -
     assert raceline_request(settings).settings.margin_m == pytest.approx(0.02)
 
 
+def test_the_line_steers_within_the_car_s_lock_or_the_planner_s_bounds() -> None:
+    """``steering_range``: the car's own lock by default (what the limit assumes), the
+    paper's box of ``[planner.bounds]`` when asked; the tracker commands the same range."""
+    from services.planner.raceline.planner import RacelinePlanner
+    from shared.track import load_track
+
+    f = RacelineSettings().min_time_steering_fraction
+    assert f == pytest.approx(0.95)  # a reserve of the lock for the tracker's feedback
+    car, _ = raceline_request(PlannerSettings())
+    assert (car.steering_min_rad, car.steering_max_rad) == pytest.approx(
+        (f * F1TENTH_GYM.steering_min_rad, f * F1TENTH_GYM.steering_max_rad))
+    assert car.model_copy(update={"steering_min_rad": F1TENTH_GYM.steering_min_rad,
+                                  "steering_max_rad": F1TENTH_GYM.steering_max_rad}) \
+        == F1TENTH_GYM  # only the steering is cut
+    whole = PlannerSettings(raceline=RacelineSettings(min_time_steering_fraction=1.0))
+    assert raceline_request(whole).car is F1TENTH_GYM  # the gym's own 0.4189 rad
+    assert raceline_request(whole, REAL_CAR_IDENTIFIED).car is REAL_CAR_IDENTIFIED
+    paper = PlannerSettings(raceline=RacelineSettings(steering_range="bounds",
+                                                      min_time_steering_fraction=1.0))
+    lo, hi = paper.bounds.delta_rad
+    boxed, _ = raceline_request(paper, REAL_CAR_IDENTIFIED)
+    assert (boxed.steering_min_rad, boxed.steering_max_rad) == (lo, hi)
+    assert boxed.mu == REAL_CAR_IDENTIFIED.mu  # only the steering is cut
+    assert raceline_steering_range(PlannerSettings(), REAL_CAR_IDENTIFIED) == (
+        REAL_CAR_IDENTIFIED.steering_min_rad, REAL_CAR_IDENTIFIED.steering_max_rad)
+    assert raceline_steering_range(paper) == (lo, hi)
+    asked = []
+
+    def loader(track, car_, settings_):
+        asked.append(car_)
+        raise RuntimeError("recorded")
+
+    with pytest.raises(RuntimeError, match="recorded"):
+        RacelinePlanner(load_track("paperlike"), paper, vehicle=REAL_CAR_IDENTIFIED,
+                        min_time_loader=loader)
+    assert asked == [boxed]
+
+
 def test_the_line_keeps_a_steering_reserve_only_when_asked() -> None:
-    full = PlannerSettings()
+    full = PlannerSettings(raceline=RacelineSettings(steering_range="bounds",
+                                                     min_time_steering_fraction=1.0))
     lo, hi = full.bounds.delta_rad
     car, _ = raceline_request(full)
     assert car is F1TENTH_GYM or (car.steering_min_rad, car.steering_max_rad) == (lo, hi)
-    reserve = PlannerSettings(raceline=RacelineSettings(min_time_steering_fraction=0.9))
+    reserve = PlannerSettings(raceline=RacelineSettings(min_time_steering_fraction=0.9,
+                                                        steering_range="bounds"))
     car9, _ = raceline_request(reserve)
     assert car9.steering_min_rad == pytest.approx(0.9 * lo)
     assert car9.steering_max_rad == pytest.approx(0.9 * hi)

@@ -13,8 +13,8 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
   speed ``v_max_mps``, margin ``line_margin_m`` and, with Pacejka tyres, the reserves
   ``slip_fraction`` and ``ellipse_fraction``;
 - ``raceline``: the raceline baseline's line with ``[planner.raceline] line = "min_time"``
-  (``raceline_request``): the car's steering within ``min_time_steering_fraction`` of the
-  planner's bounds (1: all of them), top speed
+  (``raceline_request``): the car's steering within ``min_time_steering_fraction`` of its
+  ``steering_range`` (the car's own lock, or the planner's bounds; 1: all of it), top speed
   ``v_max_mps``, grid ``ds_m``, margin ``min_time_margin_m`` and the Pacejka reserves
   ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``
   and its high-speed reserve (``min_time_reserve_speed_mps``, ``_fraction``, ``_width_mps``);
@@ -194,17 +194,33 @@ def raceline_request(
     """The lap the raceline baseline tracks with ``line = "min_time"`` (module docstring)
     for `car` (None: the F1TENTH gym's) with the planner `settings`."""
     return LapRequest(
-        planning_vehicle(car or F1TENTH_GYM, raceline_steering_limits(settings)),
+        planning_vehicle(car or F1TENTH_GYM, raceline_steering_limits(settings, car)),
         min_time_settings(settings.raceline, car),
     )
 
 
-def raceline_steering_limits(settings: PlannerSettings) -> tuple[float, float]:
-    """The steering range [rad] the raceline's minimum-time line is planned within: the
-    planner's ``[planner.bounds] delta_rad`` times ``[planner.raceline]
-    min_time_steering_fraction`` (the tracker itself commands the whole range)."""
-    f = settings.raceline.min_time_steering_fraction
+def raceline_steering_range(
+    settings: PlannerSettings, car: DynamicVehicleParams | None = None
+) -> tuple[float, float]:
+    """The steering range [rad] the raceline's tracker commands (``[planner.raceline]
+    steering_range``): `car`'s own lock (None: the F1TENTH gym's) with ``"car"``, the
+    planner's ``[planner.bounds] delta_rad`` with ``"bounds"``."""
+    if settings.raceline.steering_range == "car":
+        v = car or F1TENTH_GYM
+        return v.steering_min_rad, v.steering_max_rad
     lo, hi = settings.bounds.delta_rad
+    return lo, hi
+
+
+def raceline_steering_limits(
+    settings: PlannerSettings, car: DynamicVehicleParams | None = None
+) -> tuple[float, float]:
+    """The steering range [rad] the raceline's minimum-time line is planned within:
+    ``raceline_steering_range`` (the car's lock or the planner's bounds) times
+    ``[planner.raceline] min_time_steering_fraction`` (the tracker itself commands the whole
+    range)."""
+    f = settings.raceline.min_time_steering_fraction
+    lo, hi = raceline_steering_range(settings, car)
     return f * lo, f * hi
 
 

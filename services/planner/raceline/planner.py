@@ -9,7 +9,10 @@ tracker (Becker et al. 2023). Ours, built once per track (``[planner.raceline] l
 - ``"min_time"`` (default): the **minimum-time lap** of the car (``services.planner.
   mintime``: the car's own single-track model at its friction limits, top speed
   ``v_max_mps``, footprint ``min_time_margin_m`` inside the boundaries, steering within
-  the planner's ``[planner.bounds] delta_rad``; ``mintime.requests.raceline_request``): its
+  ``min_time_steering_fraction`` (0.95) of the car's own lock (``[planner.raceline]
+  steering_range = "car"``, what the limit assumes; ``"bounds"``: the planner's
+  ``[planner.bounds] delta_rad``, the paper's box; the tracker commands the whole range;
+  ``mintime.requests.raceline_request``): its
   CoG path, speeds, acceleration demand and steering. Solved once per track, car and
   settings by the tools (``mintime.store.ensure_artefacts``), then read from the cache.
 - ``"min_curvature"``: the line of least curvature (``min_curvature_offsets``): the
@@ -56,6 +59,7 @@ from services.planner.mintime.requests import (
     min_time_settings,
     planning_vehicle,
     raceline_steering_limits,
+    raceline_steering_range,
 )
 from services.planner.mintime.store import MinTimeArtefactMissingError, load_min_time_lap
 from services.planner.opponents import OpponentEstimate, predict_on_line
@@ -489,11 +493,12 @@ class RacelinePlanner:
         #: for the speed it has (``_slow_steering``)
         self._slow_servo = servo_reach(self.vehicle) is not None
         b = settings.bounds
-        self._delta_lim = (b.delta_rad[0], b.delta_rad[1])
+        #: the steering the tracker commands [rad] (``[planner.raceline] steering_range``)
+        self._delta_lim = raceline_steering_range(settings, self.vehicle)
         self._speed_lim = (b.v_l_mps[0], b.v_l_mps[1])
         self.raceline = raceline or build_raceline(
-            track, settings.raceline, self.vehicle, raceline_steering_limits(settings),
-            min_time_loader,
+            track, settings.raceline, self.vehicle,
+            raceline_steering_limits(settings, self.vehicle), min_time_loader,
         )
         if speed_scale is None:
             speed_scale = settings.raceline.speed_share

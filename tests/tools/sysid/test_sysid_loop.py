@@ -4,6 +4,7 @@ one; the table's honesty count (no racing, no fit: the helpers only)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from benchmarks import sysid as bench
 from shared.vehicle.identification import Estimate, SysidResult
@@ -40,3 +41,35 @@ def test_a_loop_line_names_the_ratio_and_the_off_track_events() -> None:
            "off_track_out_lap": 3, "laps": 3, "lines_wall_s": 1.0, "race_wall_s": 2.0}
     line = bench.loop_line("told the identified car", "map416", got)
     assert "1.037" in line and "off-track 3 (3 in the out lap)" in line
+
+
+def test_the_loop_races_with_the_true_pose_s_tube(monkeypatch) -> None:
+    """The loop races on the true pose, so it builds its lines and planner as the bench
+    does for it (``for_pose_source(..., "truth")``: the raceline's truth tube)."""
+    from services.planner import for_pose_source
+
+    true = bench.car("softer")
+    cfg = bench.loop_config(bench.identified_table(_fitted(0.45), bench.base_for(true)), true)
+    seen: dict = {}
+
+    def solve(track, car, settings, use, progress):
+        seen["line_margin_m"] = settings.margin_m
+
+    class Pool:
+        def __init__(self, track, vehicle):
+            pass
+
+        def planner(self, settings, method, curvature):
+            seen["settings"] = settings
+            raise RuntimeError("stop here")
+
+    monkeypatch.setattr(bench, "make_min_time_lap", solve)
+    monkeypatch.setattr(bench, "min_time_reference", lambda track, cfg: None)
+    monkeypatch.setattr(bench, "PlannerPool", Pool)
+    with pytest.raises(RuntimeError, match="stop here"):
+        bench.race_identified(cfg, "paperlike", "raceline", 1)
+    want = for_pose_source(cfg.planner, "truth")
+    assert seen["settings"] == want
+    assert want.raceline.min_time_margin_m > cfg.planner.raceline.min_time_margin_m
+    # the line solved is the one the planner loads: the tube's margin (plus the servo's)
+    assert seen["line_margin_m"] >= want.raceline.min_time_margin_m
