@@ -1115,21 +1115,23 @@ class RacelinePlanner:
         planned for stays within a few centimetres of its line and keeps the plan; one
         planned on another car's grip (the identified car raced on the gym car's line)
         slides wide in its first bends and settles at the speeds it can hold. Never for the
-        gym's unbounded ``linear`` tyres on a line they cannot drive slower
-        (``drivable_slower``): no grip to find there, and a lower scale does not bring
-        the car back to its line."""
+        gym's unbounded ``linear`` tyres: no grip to find, and on a line they cannot drive
+        slower (``drivable_slower``) a lower scale does not bring the car back to it."""
         o = self.options
         if not self._on_line:  # joining it (the start, after a recovery or a pass) is no
             # slide
             self._on_line = abs(e_line_m) < 0.5 * o.grip_error_m
             return
-        if self._unbounded_tyres and not self.drivable_slower:
-            # the gym's unbounded tyres have no grip to find, and their line drifts through
-            # bends tighter than the lock turns the car: a lower scale cannot hold it
-            # closer, it turns the car at its lock's radius, wider still (gen-20 `linear`:
-            # one out-lap event, then cut to 1.21-1.25 x the limit). A default car's line
-            # through such a bend keeps the rule: there a slide is the grip it lacks (on
-            # the identified car, without it gen-1003 spun)
+        if self._unbounded_tyres:
+            # the gym's unbounded tyres have no grip to find: a car off its line is the
+            # tracker's error, not a slide, and a cut is for the whole run. Where their line
+            # drifts through bends tighter than the lock turns the car, a lower scale even
+            # turns the car at its lock's radius, wider still (gen-20 `linear`: one out-lap
+            # event, then cut to 1.21-1.25 x the limit); on a line within the lock one cut
+            # in the cautious out lap held gen-14 and Silverstone at 0.78 of their lines
+            # (1.28-1.45 x the limit) once the line could use the car's whole lock. A
+            # default car's line keeps the rule: there a slide is the grip it lacks (on the
+            # identified car, without it gen-1003 spun)
             return
         limit = o.grip_error_m
         if self._start_phase is not None:  # the cautious out lap judges more closely
