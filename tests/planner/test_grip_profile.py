@@ -186,19 +186,23 @@ def _slide_then_line(planner: RacelinePlanner, ticks: int) -> None:
         planner.step(*_rear_axle_at(planner, 0.15 * k, 0.3 if 10 <= k < 16 else 0.0))
 
 
-@pytest.mark.parametrize("case", ["off", "linear tyres"])
-def test_without_the_grip_profile_the_whole_line_is_scaled(case: str) -> None:
-    """Off, or for the gym's unbounded linear tyres (no grip to find), the cuts scale the
-    line as built."""
-    if case == "off":
-        planner = _planner(grip_profile=False, grip_profile_settle_ticks=1)
-    else:
-        linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
-        planner = _planner(vehicle=linear, grip_profile_settle_ticks=1)
+def test_without_the_grip_profile_the_whole_line_is_scaled() -> None:
+    """Off, the cuts scale the line as built."""
+    planner = _planner(grip_profile=False, grip_profile_settle_ticks=1)
     _slide_then_line(planner, 40)
     assert planner.raceline is planner.built_line and planner.speed_scale == pytest.approx(0.8)
     cmd = planner.step(*_rear_axle_at(planner, 6.0)).command
     assert cmd.speed_mps < 0.85 * CAP_MPS
+
+
+def test_linear_tyres_are_neither_cut_nor_re_planned() -> None:
+    """The gym's unbounded linear tyres have no grip to find: the same slide cuts nothing,
+    and the line stays as built at its own speeds."""
+    linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
+    planner = _planner(vehicle=linear, grip_profile_settle_ticks=1)
+    _slide_then_line(planner, 40)
+    assert planner.raceline is planner.built_line and planner.speed_scale == 1.0
+    assert planner.replan_work_done == 0
 
 
 def test_no_profile_is_re_planned_before_the_servo_s_lag_is_measured() -> None:
