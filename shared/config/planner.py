@@ -171,6 +171,17 @@ class RacelineSettings(Section):
         "chosen on the generator's TUNING_SEEDS: 2 out-lap events in 135 cells against 4 "
         "at 1) [1]",
     )
+    min_time_steering_fraction_linear: float | None = Field(
+        0.85, ge=0.5, le=1.0,
+        description="min_time, the gym's unbounded 'linear' tyres: the line steers within "
+        "this fraction of steering_range instead of min_time_steering_fraction. Their line "
+        "holds the lock through every tight bend at the speed cap (no grip bounds it, only "
+        "the lock), and a car that leaves such a bend a few centimetres off its line has "
+        "only the reserve to come back before the exit's kerb (the out lap's first pass, "
+        "before the steering is learnt: 2 off-track events in the generator's TUNING_SEEDS' "
+        "45 linear cells at 0.95 and 0.9, 0 at 0.85 for 0.2 % more lap time); None: "
+        "min_time_steering_fraction [1]",
+    )
     servo_margin_m: float = Field(
         0.03, ge=0.0, le=1.0,
         description="min_time, a car with a slow servo (its lag inverted by the tracker, "

@@ -96,6 +96,43 @@ def test_the_line_keeps_a_steering_reserve_only_when_asked() -> None:
     assert asked == [car9]
 
 
+def test_a_linear_tyre_line_keeps_a_larger_steering_reserve() -> None:
+    """``min_time_steering_fraction_linear``: the gym's unbounded ``linear`` tyres hold the
+    lock through every tight bend, so their line keeps more of it for the tracker; a car
+    with a friction limit keeps ``min_time_steering_fraction``; None: the same for all."""
+    o = RacelineSettings()
+    assert o.min_time_steering_fraction_linear == pytest.approx(0.85)
+    settings = PlannerSettings(raceline=o)
+    linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
+    car_l, _ = raceline_request(settings, linear)
+    assert (car_l.steering_min_rad, car_l.steering_max_rad) == pytest.approx(
+        (0.85 * linear.steering_min_rad, 0.85 * linear.steering_max_rad))
+    assert car_l.tyre_model == "linear"
+    for car in (F1TENTH_GYM, REAL_CAR_IDENTIFIED):  # friction-limited: the common reserve
+        got, _ = raceline_request(settings, car)
+        assert got.steering_max_rad == pytest.approx(0.95 * car.steering_max_rad)
+    same = PlannerSettings(raceline=RacelineSettings(min_time_steering_fraction_linear=None))
+    car_n, _ = raceline_request(same, linear)
+    assert car_n.steering_max_rad == pytest.approx(0.95 * linear.steering_max_rad)
+    # the tracker still commands the car's whole lock
+    assert raceline_steering_range(settings, linear) == (
+        linear.steering_min_rad, linear.steering_max_rad)
+    # the loader is asked for the linear car's own request
+    from services.planner.raceline.planner import RacelinePlanner
+    from shared.track import load_track
+
+    asked = []
+
+    def loader(track, car_, settings_):
+        asked.append(car_)
+        raise RuntimeError("recorded")
+
+    with pytest.raises(RuntimeError, match="recorded"):
+        RacelinePlanner(load_track("paperlike"), settings, vehicle=linear,
+                        min_time_loader=loader)
+    assert asked == [car_l]
+
+
 def test_each_pose_source_adds_its_own_margin() -> None:
     settings = PlannerSettings(raceline=RacelineSettings(ekf_margin_m=0.01, lidar_margin_m=0.03,
                                                          truth_margin_m=0.0))

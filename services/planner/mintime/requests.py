@@ -218,8 +218,13 @@ def raceline_steering_limits(
     """The steering range [rad] the raceline's minimum-time line is planned within:
     ``raceline_steering_range`` (the car's lock or the planner's bounds) times
     ``[planner.raceline] min_time_steering_fraction`` (the tracker itself commands the whole
-    range)."""
-    f = settings.raceline.min_time_steering_fraction
+    range), or ``min_time_steering_fraction_linear`` when it is set and `car` has the gym's
+    unbounded ``linear`` tyres."""
+    o = settings.raceline
+    f = o.min_time_steering_fraction
+    if o.min_time_steering_fraction_linear is not None and (
+            car or F1TENTH_GYM).tyre_model == "linear":
+        f = o.min_time_steering_fraction_linear
     lo, hi = raceline_steering_range(settings, car)
     return f * lo, f * hi
 
