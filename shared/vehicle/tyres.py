@@ -87,21 +87,26 @@ def pacejka_peak_slip_rad(p: DynamicVehicleParams, axle: Axle) -> float:
     return 0.5 * (lo + hi) / b
 
 
+#: Newton steps of the magic formula's inverse (``pacejka_slip_for_share``): from ``x = t``
+#: the rising ``x - E (x - atan x) = t`` (E < 1) is solved to rounding in fewer.
+PACEJKA_NEWTON_STEPS = 8
+
+
 def pacejka_slip_for_share(p: DynamicVehicleParams, axle: Axle, share: Any) -> Any:
     """Slip angle(s) [rad] below the peak at which the magic formula gives `share` (in [0, 1],
     numpy array or float) of the axle's peak force: the inverse of ``sin(phi(alpha))`` on
-    its rising branch (``share`` 1: the peak slip). Pure lateral force, no longitudinal."""
+    its rising branch (``share`` 1: the peak slip), by Newton's method. Pure lateral force,
+    no longitudinal."""
     import numpy as np
 
     b, c, _d, e = p.pacejka_front if axle == "front" else p.pacejka_rear
     u = np.clip(np.asarray(share, dtype=float), 0.0, 1.0)
     target = np.tan(np.arcsin(u) / c)  # x_eff = x - E (x - atan x), increasing in x
-    lo, hi = np.zeros_like(target), np.full_like(target, 50.0)
-    for _ in range(100):
-        mid = 0.5 * (lo + hi)
-        below = mid - e * (mid - np.arctan(mid)) < target
-        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
-    out = 0.5 * (lo + hi) / b
+    x = target.copy()
+    for _ in range(PACEJKA_NEWTON_STEPS):
+        f = x - e * (x - np.arctan(x)) - target
+        x = np.maximum(x - f / (1.0 - e + e / (1.0 + x * x)), 0.0)
+    out = x / b
     return float(out) if np.ndim(out) == 0 else out
 
 

@@ -293,6 +293,9 @@ def test_a_grip_adapted_car_steers_for_the_speed_it_is_held_at() -> None:
     assert not asked and res.command.steering_rad != pytest.approx(0.0123)
     planner.speed_scale = 0.8
     res = planner.step(*pose)
-    assert asked == [pytest.approx(res.command.speed_mps)]
+    # the speed asked of it: its plan at the scale, without the speed loop's lead
+    # (``_steering_speed``), below the command that carries the lead
+    assert len(asked) == 1 and asked[0] == pytest.approx(0.8 * float(ref.at("v", s)), rel=0.02)
+    assert asked[0] < res.command.speed_mps
     assert res.command.steering_rad == pytest.approx(0.0123)
     assert res.command.speed_mps < 0.85 * float(ref.at("v", s)) + 0.5

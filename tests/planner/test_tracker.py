@@ -291,10 +291,14 @@ def test_the_schedules_exponent() -> None:
     assert tracker_gains(o).k_lateral_at(10.0) == pytest.approx(o.k_lateral_radpm * 0.418**3)
 
 
-def test_a_slower_plan_keeps_the_fourth_power_of_the_plans_dynamic_part() -> None:
-    """``ReferenceLap.slower``: the steady state at the slower speeds plus share^4 of what
-    the plan steers and yaws beyond its own steady state (the yaw's part wrapped: a plan's
-    unwrapped yaw may start a turn away from the steady state's)."""
+def test_a_slower_plan_keeps_a_power_of_the_plans_dynamic_part() -> None:
+    """``ReferenceLap.slower``: the steady state at the slower speeds plus
+    share^``DYNAMIC_SHARE_EXPONENT`` of what the plan steers and yaws beyond its own steady
+    state (the yaw's part wrapped: a plan's unwrapped yaw may start a turn away from the
+    steady state's)."""
+    from services.planner.raceline.tracker import DYNAMIC_SHARE_EXPONENT
+
+    k = 0.8**DYNAMIC_SHARE_EXPONENT
     track = stadium(4.0, 1.5)
     kappa = track.signed_curvature()
     steady = ReferenceLap.from_path(track, np.asarray(kappa), np.full(len(track.xy), 3.0), CAR)
@@ -311,8 +315,8 @@ def test_a_slower_plan_keeps_the_fourth_power_of_the_plans_dynamic_part() -> Non
     bare = ReferenceLap.from_path(track, np.asarray(kappa), 0.8 * plan.v_mps, CAR)
     assert slow.v_mps == pytest.approx(0.8 * plan.v_mps)
     assert slow.t_s == pytest.approx(bare.t_s)
-    assert slow.delta_rad == pytest.approx(bare.delta_rad + 0.8**4 * dyn_delta)
-    assert slow.yaw_rad == pytest.approx(bare.yaw_rad + 0.8**4 * dyn_yaw)
+    assert slow.delta_rad == pytest.approx(bare.delta_rad + k * dyn_delta)
+    assert slow.yaw_rad == pytest.approx(bare.yaw_rad + k * dyn_yaw)
     with pytest.raises(ValueError, match="share"):
         plan.slower(0.0, CAR)
 

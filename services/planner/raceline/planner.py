@@ -127,6 +127,11 @@ JOIN_TOLERANCE_M = 0.05
 #: held behind an opponent, joining the line, ramping up after a recovery:
 #: ``RacelinePlanner._slow_steering``), and how far below the line's speed [m/s] they act.
 FEED_FORWARD_SCALES = (0.4, 0.55, 0.7, 0.85, 1.0)
+#: A car with a slow servo this far [m/s] below the speed asked of it steers the slower
+#: plans for the speed it travels (``RacelinePlanner._steering_speed``): catching up after
+#: the hand-over, not holding a share of the line (there the two differ by centimetres per
+#: second).
+CATCH_UP_MPS = 0.2
 SLOW_SPEED_MPS = 0.05
 #: How far ahead the offset from the line is kept inside the track [s of the line's speed].
 OFFSET_ROOM_S = 1.0
@@ -489,8 +494,8 @@ class RacelinePlanner:
         self.settings = settings
         self.options = settings.raceline
         self.vehicle = vehicle or F1TENTH_GYM
-        #: the told car's servo is slow (``servo_reach``): held below its line it steers
-        #: for the speed it has (``_slow_steering``)
+        #: the told car's servo is slow (``servo_reach``): joining its line from low speed
+        #: it steers for the speed it has (``_steering_speed``)
         self._slow_servo = servo_reach(self.vehicle) is not None
         b = settings.bounds
         #: the steering the tracker commands [rad] (``[planner.raceline] steering_range``)
@@ -707,17 +712,8 @@ class RacelinePlanner:
         feed-forward and reference yaw are for its speed (slower, the car needs less of the
         dynamic part of the steering and slips less: it would run inside); interpolated
         between the trackers of the two nearest ``FEED_FORWARD_SCALES`` (the top one is
-        the line's own, `line_rad`). A car with a slow servo (``servo_reach`` of the
-        told car) is judged by the speed it travelled over the last period instead."""
+        the line's own, `line_rad`), for the speed `speed_mps` of ``_steering_speed``."""
         v_p = max(float(self.raceline.reference.at("v", hint)), 0.1)
-        if self._slow_servo and self._travel_mps is not None:
-            # a car with a slow servo steers for the speed it has, not its command: held at
-            # 0.8 of its line and accelerating, its command (with the speed loop's lead)
-            # was at the line's speed and took the line's steering; an S-bend's steering
-            # flipped 0.4 rad early and the car cut 5 cm inside the next bend (map416, the
-            # identified car). The gym car's fast servo did worse so (16 of 60 standing
-            # starts left the track against 0): it keeps the command
-            speed_mps = self._travel_mps
         ratio = min(max(speed_mps / v_p, FEED_FORWARD_SCALES[0]), 1.0)
         scales = FEED_FORWARD_SCALES
         i = min(int(np.searchsorted(scales, ratio, side="right")) - 1, len(scales) - 2)
@@ -732,6 +728,38 @@ class RacelinePlanner:
             hi_rad = hi.steering_rad
         w = (ratio - scales[i]) / (scales[i + 1] - scales[i])
         return (1.0 - w) * lo.steering_rad + w * hi_rad
+
+    def _steering_speed(self, speed_mps: float, tc: TrackerCommand) -> float:
+        """The speed [m/s] the slower plans are picked for (``_slow_steering``), from the
+        speed command `speed_mps` and the tracker's command `tc`.
+
+        On the line, held at a share of it (the cautious out lap, a grip cut, a car ahead):
+        the command, or the tracker's command without the speed loop's lead ``a_cmd / k``
+        (``Tracker.command``) when that is lower. Driving, the lead keeps the command above
+        the speed the car holds (the proportional loop needs the error): held at 0.9 of
+        map416's line the gym car commanded 4.06 m/s at 3.8, took the line's own steering
+        for 4.18 m/s and ran 4 cm inside every lap (held at 0.9 on the generator's
+        TUNING_SEEDS: 14 off-track events in 5 of 15 races, none without the lead).
+        Braking, the command: the speed the car slows to by the time the steering acts.
+
+        Joining the line from low speed (a join's path, the slow join of peaky tyres, the
+        hand-over's ramp): the command with its lead for a fast servo, the speed travelled
+        over the last period for a slow one (the identified car's 0.158 s: accelerating
+        at 0.8 of its line, the command put it at the line's speed and an S-bend's
+        steering flipped 0.4 rad early on map416). Without the lead there, a standing
+        start at map416's 4.85 m left the track with either car. A slow servo's car more
+        than ``CATCH_UP_MPS`` below the speed asked after the hand-over (still
+        accelerating to it) steers for its travel speed too: for the speed asked at once,
+        the identified car's standing start at map416's 2.31 m left the track."""
+        travel = self._travel_mps if self._slow_servo else None
+        if self._joining or self._join is not None or self._handover.active:
+            return speed_mps if travel is None else travel
+        t = self.tracker
+        k = t.k_accel if tc.accel_mps2 >= 0.0 else t.k_brake
+        asked = min(speed_mps, tc.speed_mps - tc.accel_mps2 / k)
+        if travel is not None and travel < asked - CATCH_UP_MPS:
+            return travel  # a slow servo's car still catching up with the speed asked
+        return asked
 
     def _offset_room(self, s_m: float) -> tuple[float, float]:
         """(lo, hi) [m]: the offsets from the line (right +) that keep the car's footprint
@@ -923,7 +951,8 @@ class RacelinePlanner:
             # ramp, a grip adaptation): the steering of the line at that speed; the line's
             # own, for its speed, turned the identified car joining at 2 m/s off the inside
             # of map416's first bends (2 off-track events in every out lap)
-            steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m, speed, steering, slope)
+            steering = self._slow_steering(cx, cy, yaw_rad, tc.s_m,
+                                           self._steering_speed(speed, tc), steering, slope)
         if self._join is not None:  # the blended path bends more (less) than the line
             steering += join_steer
         elif self._offset != 0.0:  # the offset path bends more (less) than the line
