@@ -18,6 +18,25 @@ from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED
 
 
+def _car_loaded(settings: PlannerSettings, vehicle=None):
+    """The car the raceline planner asks its minimum-time loader for (the loader records it
+    and stops the construction)."""
+    from services.planner.raceline.planner import RacelinePlanner
+    from shared.track import load_track
+
+    asked = []
+
+    def loader(track, car_, settings_):
+        asked.append(car_)
+        raise RuntimeError("recorded")
+
+    with pytest.raises(RuntimeError, match="recorded"):
+        RacelinePlanner(load_track("paperlike"), settings, vehicle=vehicle,
+                        min_time_loader=loader)
+    assert len(asked) == 1
+    return asked[0]
+
+
 def test_a_slow_servo_widens_the_line_s_margin_and_the_gym_car_keeps_its_own() -> None:
     o = RacelineSettings(min_time_margin_m=0.02, servo_margin_m=0.03)
     assert servo_reach(F1TENTH_GYM) is None and servo_reach(REAL_CAR_IDENTIFIED) is not None
@@ -34,8 +53,6 @@ def test_a_slow_servo_widens_the_line_s_margin_and_the_gym_car_keeps_its_own() -
 def test_the_line_steers_within_the_car_s_lock_or_the_planner_s_bounds() -> None:
     """``steering_range``: the car's own lock by default (what the limit assumes), the
     paper's box of ``[planner.bounds]`` when asked; the tracker commands the same range."""
-    from services.planner.raceline.planner import RacelinePlanner
-    from shared.track import load_track
 
     f = RacelineSettings().min_time_steering_fraction
     assert f == pytest.approx(0.95)  # a reserve of the lock for the tracker's feedback
@@ -57,16 +74,7 @@ def test_the_line_steers_within_the_car_s_lock_or_the_planner_s_bounds() -> None
     assert raceline_steering_range(PlannerSettings(), REAL_CAR_IDENTIFIED) == (
         REAL_CAR_IDENTIFIED.steering_min_rad, REAL_CAR_IDENTIFIED.steering_max_rad)
     assert raceline_steering_range(paper) == (lo, hi)
-    asked = []
-
-    def loader(track, car_, settings_):
-        asked.append(car_)
-        raise RuntimeError("recorded")
-
-    with pytest.raises(RuntimeError, match="recorded"):
-        RacelinePlanner(load_track("paperlike"), paper, vehicle=REAL_CAR_IDENTIFIED,
-                        min_time_loader=loader)
-    assert asked == [boxed]
+    assert _car_loaded(paper, REAL_CAR_IDENTIFIED) == boxed
 
 
 def test_the_line_keeps_a_steering_reserve_only_when_asked() -> None:
@@ -82,18 +90,7 @@ def test_the_line_keeps_a_steering_reserve_only_when_asked() -> None:
     assert car9.steering_max_rad == pytest.approx(0.9 * hi)
     assert car9 != car  # another lap (another cache key)
     # ... and the planner loads that lap, its tracker keeping the whole range
-    from services.planner.raceline.planner import RacelinePlanner
-    from shared.track import load_track
-
-    asked = []
-
-    def loader(track, car_, settings_):
-        asked.append(car_)
-        raise RuntimeError("recorded")
-
-    with pytest.raises(RuntimeError, match="recorded"):
-        RacelinePlanner(load_track("paperlike"), reserve, min_time_loader=loader)
-    assert asked == [car9]
+    assert _car_loaded(reserve) == car9
 
 
 def test_a_linear_tyre_line_keeps_a_larger_steering_reserve() -> None:
@@ -117,20 +114,7 @@ def test_a_linear_tyre_line_keeps_a_larger_steering_reserve() -> None:
     # the tracker still commands the car's whole lock
     assert raceline_steering_range(settings, linear) == (
         linear.steering_min_rad, linear.steering_max_rad)
-    # the loader is asked for the linear car's own request
-    from services.planner.raceline.planner import RacelinePlanner
-    from shared.track import load_track
-
-    asked = []
-
-    def loader(track, car_, settings_):
-        asked.append(car_)
-        raise RuntimeError("recorded")
-
-    with pytest.raises(RuntimeError, match="recorded"):
-        RacelinePlanner(load_track("paperlike"), settings, vehicle=linear,
-                        min_time_loader=loader)
-    assert asked == [car_l]
+    assert _car_loaded(settings, linear) == car_l  # the linear car's own request
 
 
 def test_each_pose_source_adds_its_own_margin() -> None:
