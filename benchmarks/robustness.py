@@ -368,7 +368,7 @@ def lap_tasks(matrix: Matrix) -> list[LapTask]:
             for pose in matrix.poses:  # the pose source's margin (``for_pose_source``)
                 planner = for_pose_source(cfg.planner, pose)
                 for method in matrix.methods:
-                    for use in laps_of(method, planner):
+                    for use in laps_of(method, planner, cfg.vehicle):
                         wanted.append((use, *request_for(use, planner, cfg.vehicle)))
             for use, vehicle, settings in wanted:
                 task = LapTask(track, use, vehicle.model_dump(mode="json"), settings,

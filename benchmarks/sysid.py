@@ -146,7 +146,7 @@ def race_identified(cfg: RacestackConfig, track_spec: str, method: str, laps: in
     t0 = time.perf_counter()
     # it races on the true pose: the bench's settings for it (the raceline's truth tube)
     settings = for_pose_source(cfg.planner, "truth")
-    for use in laps_of(method, settings):  # the lines of the identified car
+    for use in laps_of(method, settings, cfg.vehicle):  # the lines of the identified car
         make_min_time_lap(track, *request_for(use, settings, cfg.vehicle), use=use,
                           progress=None)
     ref = min_time_reference(track, cfg)  # the true car's limit
@@ -178,7 +178,7 @@ def record_drive(cfg: RacestackConfig, track_spec: str, method: str, duration_s:
     """Race `method` for `duration_s` in the bench's closed loop; the recorded signals
     (``identification.SIGNALS``) and a summary (laps, off-track events, wall time)."""
     track = load_track(track_spec)
-    for use in laps_of(method, cfg.planner):  # the lines a method races on, solved once
+    for use in laps_of(method, cfg.planner, cfg.vehicle):  # its lines, solved once
         make_min_time_lap(track, *request_for(use, cfg.planner, cfg.vehicle), use=use,
                           progress=None)
     pool = PlannerPool(track, cfg.vehicle)

@@ -209,7 +209,9 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
     ap.add_argument("--for", dest="use", choices=USES, default=LIMIT,
                     help="which lap: the car's limit (default; the bench's reference), the "
                     "line cimpcc-line contours or the raceline baseline's line (the artefact "
-                    "the planner of this configuration reads)")
+                    "the planner of this configuration reads), or that baseline's out-lap "
+                    "line (a car with a slow servo and [planner.raceline] "
+                    "flying_servo_margin_m)")
     ap.add_argument("--config", help="TOML configuration file (its [vehicle] car; default: "
                     "the built-in configuration)")
     ap.add_argument("--track", help=f"{TRACK_SPEC_HELP} (default: the config's)")

@@ -189,6 +189,18 @@ class RacelineSettings(Section):
         "tracking error (2-3 cm outside the line at a bend's entry; tuned on the "
         "generator's TUNING_SEEDS); no effect on the gym car",
     )
+    flying_servo_margin_m: float | None = Field(
+        0.01, ge=0.0, le=1.0,
+        description="min_time, a car with a slow servo that starts cautiously "
+        "(start_speed_scale < 1): the line it races once its out lap is over is planned with "
+        "this servo tube instead of servo_margin_m, which then keeps only the out lap's "
+        "line (raceline-out-lap: held below its line's speeds the car runs inside at hairpin "
+        "exits under hard acceleration; at full speed it needs less). The car changes lines "
+        "where the cautious start ends. 0.01 chosen on the generator's tuning seeds "
+        "1001-1030 (the identified car's closest pass in its flying laps 1.2 cm at 0, 2.2 cm "
+        "at 0.01, inside a line 2.3 / 3.3 cm from the wall); None: one line, "
+        "servo_margin_m throughout [m]",
+    )
     truth_margin_m: float = Field(
         0.003, ge=0.0, le=1.0,
         description="min_time, the planner on exact poses (the bench's --estimator truth): "

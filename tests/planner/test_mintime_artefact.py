@@ -44,7 +44,7 @@ from shared.config import config_from_dict, load_config
 from shared.config.methods import CIMPCC_LINE as LINE
 from shared.config.methods import RACELINE
 from shared.config.planner import PlannerSettings
-from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
+from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED, DynamicVehicleParams
 from shared.track import Track, TrackError, load_track
 
 #: The built-in track whose laps solve fastest (paperlike: 43 m, a few seconds each).
@@ -262,6 +262,14 @@ def test_ensure_artefacts_makes_what_the_method_races_on(monkeypatch) -> None:
     assert made[-1] == (RACELINE, *raceline_request(s, F1TENTH_GYM))
     # None: the settings' own method
     assert ensure_artefacts(None, track, s.model_copy(update={"method": LINE})) == [LINE]
+    # a slow servo's out lap on a line of its own (``flying_servo_margin_m``): both laps
+    fly = s.model_copy(update={"raceline": s.raceline.model_copy(
+        update={"flying_servo_margin_m": 0.0})})
+    out_lap = RACELINE + "-out-lap"
+    assert ensure_artefacts(RACELINE, track, fly, REAL_CAR_IDENTIFIED) == [RACELINE, out_lap]
+    assert made[-2:] == [(RACELINE, *raceline_request(fly, REAL_CAR_IDENTIFIED)),
+                         (out_lap, *raceline_request(fly, REAL_CAR_IDENTIFIED, out_lap=True))]
+    assert ensure_artefacts(RACELINE, track, fly) == [RACELINE]  # the gym's servo: one
 
 
 # ------------------------------------------------- the same laps as before (cache keys)

@@ -11,8 +11,11 @@ import pytest
 from services.planner import for_pose_source, raceline_request, servo_reach
 from services.planner.mintime.requests import (
     POSE_MARGINS,
+    has_out_lap_line,
+    laps_of,
     min_time_settings,
     raceline_steering_range,
+    request_for,
 )
 from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED
@@ -38,7 +41,8 @@ def _car_loaded(settings: PlannerSettings, vehicle=None):
 
 
 def test_a_slow_servo_widens_the_line_s_margin_and_the_gym_car_keeps_its_own() -> None:
-    o = RacelineSettings(min_time_margin_m=0.02, servo_margin_m=0.03)
+    o = RacelineSettings(min_time_margin_m=0.02, servo_margin_m=0.03,
+                         flying_servo_margin_m=None)  # one line (the flying tube: below)
     assert servo_reach(F1TENTH_GYM) is None and servo_reach(REAL_CAR_IDENTIFIED) is not None
     assert min_time_settings(o).margin_m == pytest.approx(0.02)
     assert min_time_settings(o, F1TENTH_GYM).margin_m == pytest.approx(0.02)
@@ -48,6 +52,85 @@ def test_a_slow_servo_widens_the_line_s_margin_and_the_gym_car_keeps_its_own() -
     assert raceline_request(settings, REAL_CAR_IDENTIFIED).settings == min_time_settings(
         o, REAL_CAR_IDENTIFIED)
     assert raceline_request(settings).settings.margin_m == pytest.approx(0.02)
+
+
+def test_a_slow_servo_can_race_its_out_lap_on_a_line_with_the_tube_and_fly_without() -> None:
+    """``flying_servo_margin_m``: the flying laps' line takes that tube, the out lap's line
+    (``raceline-out-lap``) keeps ``servo_margin_m``; one line for the gym's servo, without a
+    cautious start or with the same tube."""
+    fly = PlannerSettings(raceline=RacelineSettings(
+        min_time_margin_m=0.02, servo_margin_m=0.03, flying_servo_margin_m=0.0))
+    car = REAL_CAR_IDENTIFIED
+    assert has_out_lap_line(fly.raceline, car)
+    assert has_out_lap_line(PlannerSettings().raceline, car)  # on by default (0.01 m)
+    assert laps_of("raceline", fly, car) == ("raceline", "raceline-out-lap")
+    assert request_for("raceline", fly, car).settings.margin_m == pytest.approx(0.02)
+    assert request_for("raceline-out-lap", fly, car).settings.margin_m == pytest.approx(0.05)
+    assert request_for("raceline-out-lap", fly, car) == raceline_request(fly, car, out_lap=True)
+    with pytest.raises(ValueError, match="unknown"):
+        request_for("cimpcc-line-out-lap", fly, car)
+    for settings, vehicle in (
+        (fly, F1TENTH_GYM),  # no slow servo: no tube at all
+        (PlannerSettings(raceline=RacelineSettings(flying_servo_margin_m=None)), car),
+        (fly.model_copy(update={"raceline": fly.raceline.model_copy(
+            update={"start_speed_scale": 1.0})}), car),  # no cautious out lap
+        (fly.model_copy(update={"raceline": fly.raceline.model_copy(
+            update={"flying_servo_margin_m": 0.03})}), car),  # the same tube
+    ):
+        assert laps_of("raceline", settings, vehicle) == ("raceline",)
+        assert (request_for("raceline-out-lap", settings, vehicle)
+                == request_for("raceline", settings, vehicle))
+    # the pose source's tube on both lines
+    ekf = for_pose_source(fly, "ekf")
+    extra = fly.raceline.ekf_margin_m
+    assert request_for("raceline", ekf, car).settings.margin_m == pytest.approx(0.02 + extra)
+    assert request_for("raceline-out-lap", ekf, car).settings.margin_m == pytest.approx(
+        0.05 + extra)
+
+
+def test_the_out_lap_races_its_own_line_and_hands_over_to_the_flying_line_at_full_scale(
+) -> None:
+    """The planner loads both lines, races the out lap's while the cautious start holds the
+    car below its line, the flying laps' line from the tick the scale reaches 1, and the
+    out lap's again after a reset."""
+    from services.planner.raceline.planner import RacelinePlanner
+    from tests.planner.test_raceline import circle, circle_lap
+
+    asked: list[float] = []
+
+    def loader(track, vehicle, settings):  # the out lap's line a little slower
+        asked.append(round(settings.margin_m, 6))
+        return circle_lap(track, 3.0, 3.3 if settings.margin_m > 0.04 else 3.5, 0.15)
+
+    o = RacelineSettings(min_time_margin_m=0.02, servo_margin_m=0.03, flying_servo_margin_m=0.0,
+                         start_speed_scale=0.8, start_hold_share=0.5, start_rise_per_tick=0.05)
+    planner = RacelinePlanner(circle(3.0, n=300, width=0.6),
+                              PlannerSettings(method="raceline", raceline=o),
+                              vehicle=REAL_CAR_IDENTIFIED, min_time_loader=loader)
+    assert asked == [0.02, 0.05]  # the flying laps' line, then the out lap's
+    flying = planner.built_line
+    assert float(flying.speed_mps.max()) == pytest.approx(3.5)
+    assert planner.raceline is not flying and float(planner.raceline.speed_mps.max()) == (
+        pytest.approx(3.3))
+    length = flying.track.length_m
+    step, k = 0.3, 0
+    while planner.speed_scale < 1.0:
+        assert planner.raceline is not flying  # the whole cautious start on the out lap's
+        planner.step(*_rear_axle_at(planner, step * k))
+        k += 1
+        assert k < 200
+    assert step * k > 0.5 * length
+    assert planner.raceline is flying and planner.tracker.plan is flying.reference
+    res = planner.step(*_rear_axle_at(planner, step * k))
+    assert res.status == "solved" and planner.raceline is flying
+    planner.reset()
+    assert planner.speed_scale == 0.8 and float(planner.raceline.speed_mps.max()) == (
+        pytest.approx(3.3))
+    # the gym car with the same settings: one line, the out lap on it
+    asked.clear()
+    gym = RacelinePlanner(circle(3.0, n=300, width=0.6),
+                          PlannerSettings(method="raceline", raceline=o), min_time_loader=loader)
+    assert asked == [0.02] and gym.raceline is gym.built_line
 
 
 def test_the_line_steers_within_the_car_s_lock_or_the_planner_s_bounds() -> None:
@@ -139,8 +222,11 @@ def test_each_pose_source_adds_its_own_margin() -> None:
     assert lidar.cimpcc_line.speed_estimate_gain == settings.cimpcc_line.lidar_speed_estimate_gain
     assert lidar.model_copy(
         update={"raceline": settings.raceline, "cimpcc_line": settings.cimpcc_line}) == settings
+    # a slow servo's tubes on top: the flying laps' line and the out lap's
     assert min_time_settings(lidar.raceline, REAL_CAR_IDENTIFIED).margin_m == pytest.approx(
-        0.05 + settings.raceline.servo_margin_m)
+        0.05 + settings.raceline.flying_servo_margin_m)
+    assert min_time_settings(lidar.raceline, REAL_CAR_IDENTIFIED, out_lap=True).margin_m == (
+        pytest.approx(0.05 + settings.raceline.servo_margin_m))
     assert set(POSE_MARGINS) == {"truth", "ekf", "lidar"}
     with pytest.raises(ValueError, match="unknown pose source"):
         for_pose_source(settings, "gps")

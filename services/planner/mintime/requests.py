@@ -2,7 +2,7 @@
 
 A minimum-time lap (``services.planner.mintime.ocp``) is fixed by the track, the car it is
 solved for and its ``MinTimeSettings``; the store keys its artefact on exactly these
-(``services.planner.mintime.store.cache_key``). Three uses race on one (``USES``):
+(``services.planner.mintime.store.cache_key``). These uses race on one (``USES``):
 
 - ``limit``: the car's limit, the bench's reference and ``racestack mintime``'s default
   (``limit_request``): the car as configured, top speed ``[planner.cimpcc] v_up_mps[0]``,
@@ -20,7 +20,10 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
   and its high-speed reserve (``min_time_reserve_speed_mps``, ``_fraction``, ``_width_mps``);
   the margin widened for a slow servo (``servo_margin_m``) and, through
   ``for_pose_source``, for the pose source (``truth_margin_m``, ``ekf_margin_m``,
-  ``lidar_margin_m``).
+  ``lidar_margin_m``);
+- ``raceline-out-lap``: the raceline's out lap on a line of its own (``has_out_lap_line``: a
+  slow servo, a cautious start and ``flying_servo_margin_m``): the flying laps' line takes
+  ``flying_servo_margin_m`` as the servo's tube, this one ``servo_margin_m``.
 
 ``laps_of(method, settings)`` says which of them a planner method needs. Pure functions:
 no I/O, no solve.
@@ -38,11 +41,17 @@ from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
 
 #: The car's limit (the bench's reference, ``racestack mintime``'s default).
 LIMIT = "limit"
-#: Every use of a minimum-time lap (``racestack mintime --for``): the limit and each planner
-#: method of the registry that races on a line of its own (named by the method).
+#: The suffix of the out lap's line of a method that races its own minimum-time line
+#: (``raceline-out-lap``: ``[planner.raceline] flying_servo_margin_m``, ``has_out_lap_line``).
+OUT_LAP = "-out-lap"
+#: Every use of a minimum-time lap (``racestack mintime --for``): the limit, each planner
+#: method of the registry that races on a line of its own (named by the method) and the out
+#: lap's line of each that tracks a planned line.
 USES = (
     LIMIT,
     *(n for n, s in METHODS.items() if s.in_planner and s.reference != "centreline"),
+    *(n + OUT_LAP for n, s in METHODS.items()
+      if s.in_planner and s.reference == "planned_line"),
 )
 
 
@@ -77,18 +86,37 @@ def planning_vehicle(
     )
 
 
+def has_out_lap_line(settings: RacelineSettings, car: DynamicVehicleParams | None = None
+                     ) -> bool:
+    """Whether the raceline races its out lap on a line of its own (``OUT_LAP``): `car`
+    (None: the gym's) has a slow servo (``mintime.model.servo_reach``), the run starts
+    cautiously (``start_speed_scale`` < 1) and ``flying_servo_margin_m`` gives the flying
+    laps' line another servo tube than ``servo_margin_m``."""
+    return (settings.flying_servo_margin_m is not None
+            and settings.flying_servo_margin_m != settings.servo_margin_m
+            and settings.start_speed_scale < 1.0
+            and servo_reach(car or F1TENTH_GYM) is not None)
+
+
 def min_time_settings(
-    settings: RacelineSettings, car: DynamicVehicleParams | None = None
+    settings: RacelineSettings, car: DynamicVehicleParams | None = None,
+    *, out_lap: bool = False,
 ) -> MinTimeSettings:
     """The raceline's minimum-time problem: top speed [m/s], grid [m], footprint margin [m]
     of `settings` (``[planner.raceline]``) for `car` (None: the gym's). The margin is
     ``min_time_margin_m``, plus ``servo_margin_m`` for a car with a slow servo
     (``mintime.model.servo_reach``: its tracker inverts the lag and still runs 2-3 cm
     outside the line where a bend begins), plus the pose source's tube when the settings
-    come through ``for_pose_source``."""
+    come through ``for_pose_source``. With an out lap's line of its own
+    (``has_out_lap_line``) the servo's tube is ``flying_servo_margin_m`` but for that line
+    (`out_lap`)."""
     margin = settings.min_time_margin_m
     if servo_reach(car or F1TENTH_GYM) is not None:
-        margin += settings.servo_margin_m
+        flying = settings.flying_servo_margin_m
+        if has_out_lap_line(settings, car) and not out_lap and flying is not None:
+            margin += flying
+        else:
+            margin += settings.servo_margin_m
     return MinTimeSettings(
         v_max_mps=settings.v_max_mps,
         ds_m=settings.ds_m,
@@ -189,13 +217,15 @@ def line_request(
 
 
 def raceline_request(
-    settings: PlannerSettings, car: DynamicVehicleParams | None = None
+    settings: PlannerSettings, car: DynamicVehicleParams | None = None,
+    *, out_lap: bool = False,
 ) -> LapRequest:
     """The lap the raceline baseline tracks with ``line = "min_time"`` (module docstring)
-    for `car` (None: the F1TENTH gym's) with the planner `settings`."""
+    for `car` (None: the F1TENTH gym's) with the planner `settings`; `out_lap`: the line of
+    its out lap (``has_out_lap_line``; the same lap when it has none)."""
     return LapRequest(
         planning_vehicle(car or F1TENTH_GYM, raceline_steering_limits(settings, car)),
-        min_time_settings(settings.raceline, car),
+        min_time_settings(settings.raceline, car, out_lap=out_lap),
     )
 
 
@@ -252,22 +282,28 @@ def request_for(
     """
     if use == LIMIT:
         return limit_request(settings, car)
-    spec = METHODS.get(use)
+    out_lap = use.endswith(OUT_LAP) and use in USES
+    spec = METHODS.get(use.removesuffix(OUT_LAP) if out_lap else use)
     if spec is not None and spec.reference == "min_time_line":
         return line_request(settings, car)
     if spec is not None and spec.reference == "planned_line":
-        return raceline_request(settings, car)
+        return raceline_request(settings, car, out_lap=out_lap)
     raise ValueError(f"unknown minimum-time lap {use!r}; choose one of {', '.join(USES)}")
 
 
-def laps_of(method: str, settings: PlannerSettings) -> tuple[str, ...]:
-    """The minimum-time laps (``USES``) planner `method` races on with `settings`: the line
-    for ``cimpcc-line``, the raceline's for ``raceline`` with ``line = "min_time"``, none
-    for the others (``cimpcc``, ``mpcc``, a minimum-curvature raceline, ...)."""
+def laps_of(
+    method: str, settings: PlannerSettings, car: DynamicVehicleParams | None = None
+) -> tuple[str, ...]:
+    """The minimum-time laps (``USES``) planner `method` races on with `settings` for `car`
+    (None: the gym's): the line for ``cimpcc-line``, the raceline's for ``raceline`` with
+    ``line = "min_time"`` (and its out lap's, ``has_out_lap_line``), none for the others
+    (``cimpcc``, ``mpcc``, a minimum-curvature raceline, ...)."""
     spec = method_spec(method)
     name = spec.base or spec.name
     if spec.reference == "min_time_line":
         return (name,)
     if spec.reference == "planned_line" and settings.raceline.line == "min_time":
+        if has_out_lap_line(settings.raceline, car):
+            return (name, name + OUT_LAP)
         return (name,)
     return ()

@@ -325,7 +325,7 @@ def ensure_artefacts(
     """
     name = method or settings.method
     laps = []
-    for use in laps_of(name, settings):
+    for use in laps_of(name, settings, vehicle):
         car, lap_settings = request_for(use, settings, vehicle)
         laps.append(
             make_min_time_lap(

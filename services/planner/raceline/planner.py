@@ -14,7 +14,10 @@ tracker (Becker et al. 2023). Ours, built once per track (``[planner.raceline] l
   ``[planner.bounds] delta_rad``, the paper's box; the tracker commands the whole range;
   ``mintime.requests.raceline_request``): its
   CoG path, speeds, acceleration demand and steering. Solved once per track, car and
-  settings by the tools (``mintime.store.ensure_artefacts``), then read from the cache.
+  settings by the tools (``mintime.store.ensure_artefacts``), then read from the cache. A
+  car with a slow servo may race its cautious out lap on a second such lap planned with
+  the servo's tube and its flying laps on one without (``flying_servo_margin_m``,
+  ``mintime.requests.has_out_lap_line``).
 - ``"min_curvature"``: the line of least curvature (``min_curvature_offsets``): the
   centreline resampled every ``ds_m``, each point moved along its left normal by
   ``alpha_i``; minimise the integral of the squared curvature of the moved points,
@@ -56,6 +59,8 @@ from services.planner.interface import BRAKING, RECOVERING, SOLVED, DriveCommand
 from services.planner.mintime.model import reserve_ramp, servo_reach
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mintime.requests import (
+    OUT_LAP,
+    has_out_lap_line,
     min_time_settings,
     planning_vehicle,
     raceline_steering_limits,
@@ -304,6 +309,13 @@ def default_min_time_loader(
     return load_min_time_lap(track, vehicle, settings, use=RACELINE)
 
 
+def _out_lap_loader(
+    track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSettings
+) -> MinTimeLap:
+    """``default_min_time_loader`` for the out lap's line (its error names that lap)."""
+    return load_min_time_lap(track, vehicle, settings, use=RACELINE + OUT_LAP)
+
+
 def build_min_curvature_raceline(
     track: Track, settings: RacelineSettings, vehicle: DynamicVehicleParams = F1TENTH_GYM
 ) -> Raceline:
@@ -354,15 +366,19 @@ def build_min_time_raceline(
     vehicle: DynamicVehicleParams = F1TENTH_GYM,
     steering_limits_rad: tuple[float, float] | None = None,
     loader: MinTimeLoader | None = None,
+    *,
+    out_lap: bool = False,
 ) -> Raceline:
-    """The minimum-time lap of `vehicle` on `track` as a raceline (module docstring).
+    """The minimum-time lap of `vehicle` on `track` as a raceline (module docstring);
+    `out_lap`: the out lap's line (``mintime.requests.has_out_lap_line``).
 
     Raises:
         RacelineError: no minimum-time lap exists (or the line is not a valid loop).
     """
     car = planning_vehicle(vehicle, steering_limits_rad)
+    load = loader or (_out_lap_loader if out_lap else default_min_time_loader)
     try:
-        lap = (loader or default_min_time_loader)(track, car, min_time_settings(settings, vehicle))
+        lap = load(track, car, min_time_settings(settings, vehicle, out_lap=out_lap))
     except MinTimeArtefactMissingError:
         raise  # its own line: the command that makes the lap
     except MinTimeError as exc:
@@ -524,6 +540,22 @@ class RacelinePlanner:
                                        for k in FEED_FORWARD_SCALES[:-1])
         #: the current ``raceline``'s slower plans
         self._slow_plans = self._built_slow_plans
+        #: the out lap's own line and its slower plans (``mintime.requests.has_out_lap_line``:
+        #: a slow servo's line with the servo's whole tube, raced while the cautious start
+        #: holds the car below its line; ``_cautious_start`` hands over to the built line);
+        #: None: the out lap races the built line
+        self._out_lap: tuple[Raceline, tuple[ReferenceLap, ...]] | None = None
+        if (raceline is None and self.line_share == 1.0 and settings.raceline.line == "min_time"
+                and has_out_lap_line(settings.raceline, self.vehicle)):
+            out = build_min_time_raceline(
+                track, settings.raceline, self.vehicle,
+                raceline_steering_limits(settings, self.vehicle), min_time_loader, out_lap=True)
+            out_ref = out.reference
+            out_steady = ReferenceLap.from_path(out_ref.line, out_ref.kappa_1pm, out_ref.v_mps,
+                                                self.vehicle)
+            self._out_lap = (out, tuple(out_ref.slower(k, self.vehicle, steady=out_steady)
+                                        for k in FEED_FORWARD_SCALES[:-1]))
+            out.track.prepare_projection()
         #: the grip re-plan under way (``_replan_for_grip``), a slice per tick
         self._grip_job: GripReplan | None = None
         #: node steps of grip re-plan work done so far (every job, every run): a tick that
@@ -603,6 +635,8 @@ class RacelinePlanner:
         self.speed_scale = o.start_speed_scale if cautious else 1.0
         #: the cautious out lap (``_cautious_start``): "hold", "rise" or None (over)
         self._start_phase: str | None = "hold" if cautious else None
+        if cautious and self._out_lap is not None:  # on the out lap's own line
+            self._follow(self._out_lap[0], 1.0, self._out_lap[1])
         self._start_travel_m = 0.0  #: the line's length driven since the start [m]
         self._grip_shown = 0.0  #: the lateral acceleration held on the line [m/s^2]
         self._start_s: float | None = None  #: the line station of the last tick [m]
@@ -1105,7 +1139,8 @@ class RacelinePlanner:
         """The cautious out lap (``[planner.raceline] start_speed_scale``): the speed scale
         held at the start's over ``start_hold_share`` of the line, then raised by
         ``start_rise_per_tick`` to 1; over for good once the grip adaptation cuts it (the
-        car slid: the adaptation owns the scale from then on)."""
+        car slid: the adaptation owns the scale from then on). With an out lap's line of its
+        own (``_out_lap``) the car changes to the built line where the scale reaches 1."""
         if self._start_phase is None:
             return
         o = self.options
@@ -1126,6 +1161,9 @@ class RacelinePlanner:
                                min(top, self.speed_scale + o.start_rise_per_tick))
         if self.speed_scale >= 1.0:
             self._start_phase = None
+            if self._out_lap is not None and self.raceline is self._out_lap[0]:
+                # at the line's speeds: on the flying laps' line from the next tick
+                self._follow(self.built_line, 1.0, self._built_slow_plans)
 
     def _show_grip(self, s_line_m: float) -> None:
         """The lateral acceleration [m/s^2] the car held on its line this tick, as the plan
