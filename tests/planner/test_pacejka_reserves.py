@@ -299,3 +299,31 @@ def test_a_grip_adapted_car_steers_for_the_speed_it_is_held_at() -> None:
     assert asked[0] < res.command.speed_mps
     assert res.command.steering_rad == pytest.approx(0.0123)
     assert res.command.speed_mps < 0.85 * float(ref.at("v", s)) + 0.5
+
+
+def test_a_slow_servo_joins_its_line_at_a_gentler_slope(monkeypatch) -> None:
+    """Joining at JOIN_SPEED_MPS, a car with a slow servo moves across at
+    ``SLOW_SERVO_JOIN_SHARE`` of the lateral speed of the line's top speed: a longer blend
+    for the same gap (its servo lags the blend's turn back onto the line)."""
+    import services.planner.raceline.planner as rp
+
+    assert 0.0 < rp.SLOW_SERVO_JOIN_SHARE < 1.0
+    track = load_track("paperlike")
+    lengths = {}
+    for share in (1.0, rp.SLOW_SERVO_JOIN_SHARE):
+        monkeypatch.setattr(rp, "SLOW_SERVO_JOIN_SHARE", share)
+        planner = RacelinePlanner(track, PlannerSettings(raceline=RacelineSettings(
+            line="min_curvature")), vehicle=CAR)
+        assert planner._slow_servo
+        ref = planner.raceline.reference
+        s = float(ref.s_m[int(np.argmax(ref.v_mps))])  # the fastest point: a straight
+        line = ref.line
+        x, y = line.point_at(s)
+        h = float(line.heading_at(s))
+        off = 0.3  # the rear axle 0.3 m left of the line, at rest: a slow join
+        planner.step(float(x) - off * math.sin(h) - CAR.lr_m * math.cos(h),
+                     float(y) + off * math.cos(h) - CAR.lr_m * math.sin(h), h)
+        assert planner._joining and planner._join is not None
+        lengths[share] = planner._join.length_m
+    assert lengths[rp.SLOW_SERVO_JOIN_SHARE] == pytest.approx(
+        lengths[1.0] / rp.SLOW_SERVO_JOIN_SHARE, rel=0.05)

@@ -154,6 +154,12 @@ JOIN_GRIP_SHARE = 0.8
 JOIN_LOOK_M = 1.5
 #: ... and bends at most as tight as this share of the steering limit turns the car.
 JOIN_STEER_SHARE = 0.8
+#: A car with a slow servo joining at ``JOIN_SPEED_MPS`` moves across at this share of the
+#: lateral speed the blend has at the line's top speed: its servo lags the blend's turn
+#: back onto the line, and at the full share (a 12 degree blend) the identified car's front
+#: corner went over the wall where the line runs 3 cm from it (the start of gen:1027 in
+#: the generator's tuning family and of the held-out gen:3; 0.7 and 0.5 both clean there).
+SLOW_SERVO_JOIN_SHARE = 0.7
 #: A pass starts only once planned this many ticks in a row (the tick before it: the last
 #: plan that was not a pass is kept): an estimate that opens a pass for a tick or two
 #: does not swerve the car.
@@ -1277,7 +1283,11 @@ class RacelinePlanner:
         # the blend's lateral speed is the same joining slowly (peaky tyres, JOIN_SPEED_MPS)
         # as at the line's top speed: a steeper, shorter blend (a long one at 2 m/s left
         # the identified car ramping up into map416's first bend)
-        slope = MAX_JOIN_SLOPE * (self._top_speed_mps / JOIN_SPEED_MPS if self._joining else 1.0)
+        slope = MAX_JOIN_SLOPE
+        if self._joining:
+            slope *= self._top_speed_mps / JOIN_SPEED_MPS
+            if self._slow_servo:  # (``SLOW_SERVO_JOIN_SHARE``)
+                slope *= SLOW_SERVO_JOIN_SHARE
         return LineJoin.start(s_l, e0, line.s_m, q, line.length_m, max_slope=slope,
                               line_xy=self._line_points,
                               max_curvature_1pm=JOIN_STEER_SHARE * turn, turn_curvature_1pm=turn)
