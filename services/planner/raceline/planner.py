@@ -450,6 +450,17 @@ def scaled_raceline(
     return replace(raceline, speed_mps=raceline.speed_mps * scale, reference=scaled)
 
 
+def slower_plans(
+    ref: ReferenceLap, vehicle: DynamicVehicleParams
+) -> tuple[ReferenceLap, tuple[ReferenceLap, ...]]:
+    """`ref`'s path at its own speeds for `vehicle` (``ReferenceLap.from_path``, the steady
+    state its slower plans start from) and its plan at each ``FEED_FORWARD_SCALES`` but
+    the last (``ReferenceLap.slower``)."""
+    steady = ReferenceLap.from_path(ref.line, ref.kappa_1pm, ref.v_mps, vehicle)
+    return steady, tuple(ref.slower(k, vehicle, steady=steady)
+                         for k in FEED_FORWARD_SCALES[:-1])
+
+
 def planner_timing(
     settings: PlannerSettings, vehicle: DynamicVehicleParams | None = None
 ) -> TrackerTiming:
@@ -535,15 +546,11 @@ class RacelinePlanner:
         #: the line as built; ``raceline`` is it, or it re-planned for the grip found
         #: (``_replan_for_grip``) until the next ``reset``
         self.built_line = self.raceline
-        ref = self.built_line.reference
-        #: the built line's path at its own speeds (``ReferenceLap.from_path``): each
-        #: re-plan's plans start from it
-        self._built_steady = ReferenceLap.from_path(ref.line, ref.kappa_1pm, ref.v_mps,
-                                                    self.vehicle)
-        #: the built line's plan at each ``FEED_FORWARD_SCALES`` but the last
-        #: (``_slow_trackers``), made here, not in the first tick that needs them
-        self._built_slow_plans = tuple(ref.slower(k, self.vehicle, steady=self._built_steady)
-                                       for k in FEED_FORWARD_SCALES[:-1])
+        #: the built line's path at its own speeds (``ReferenceLap.from_path``: each
+        #: re-plan's plans start from it) and its plan at each ``FEED_FORWARD_SCALES`` but
+        #: the last (``_slow_trackers``), made here, not in the first tick that needs them
+        self._built_steady, self._built_slow_plans = slower_plans(
+            self.built_line.reference, self.vehicle)
         #: the current ``raceline``'s slower plans
         self._slow_plans = self._built_slow_plans
         #: the out lap's own line and its slower plans (``mintime.requests.has_out_lap_line``:
@@ -556,11 +563,7 @@ class RacelinePlanner:
             out = build_min_time_raceline(
                 track, settings.raceline, self.vehicle,
                 raceline_steering_limits(settings, self.vehicle), min_time_loader, out_lap=True)
-            out_ref = out.reference
-            out_steady = ReferenceLap.from_path(out_ref.line, out_ref.kappa_1pm, out_ref.v_mps,
-                                                self.vehicle)
-            self._out_lap = (out, tuple(out_ref.slower(k, self.vehicle, steady=out_steady)
-                                        for k in FEED_FORWARD_SCALES[:-1]))
+            self._out_lap = (out, slower_plans(out.reference, self.vehicle)[1])
             out.track.prepare_projection()
         #: the grip re-plan under way (``_replan_for_grip``), a slice per tick
         self._grip_job: GripReplan | None = None
