@@ -201,6 +201,23 @@ class RacelineSettings(Section):
         "at 0.01, inside a line 2.3 / 3.3 cm from the wall); None: one line, "
         "servo_margin_m throughout [m]",
     )
+    out_lap_margin_m: float = Field(
+        0.02, ge=0.0, le=1.0,
+        description="min_time, a car that races its out lap at its line's speeds (no "
+        "cautious start: start_speed_scale 1, or the gym's unbounded 'linear' tyres, whose "
+        "line cannot be driven slower): the out lap races a line planned with this much "
+        "more margin [m] (raceline-out-lap), and the car changes to its flying laps' line "
+        "past out_lap_handover_share of the lap, where the two lines run together. The out "
+        "lap is not timed, and its car has yet to learn its steering, may be joining its "
+        "line and, with the lidar, has a filter still settling; 0: one line",
+    )
+    out_lap_handover_share: float = Field(
+        0.5, ge=0.0, le=0.95,
+        description="a full-speed out lap on a line of its own (out_lap_margin_m): the car "
+        "changes to its flying laps' line past this share of the line's length, at the "
+        "first station where the two lines run within 5 mm of each other over a metre (or, "
+        "where they never do before 0.9 of it, within 5 mm of the nearest they come) [1]",
+    )
     truth_margin_m: float = Field(
         0.003, ge=0.0, le=1.0,
         description="min_time, the planner on exact poses (the bench's --estimator truth): "

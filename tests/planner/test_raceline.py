@@ -229,9 +229,10 @@ def test_the_default_line_is_the_min_time_lap_planned_within_the_car_s_lock() ->
         calls.append((track, vehicle, settings))
         return circle_lap(track, 3.0, 3.5, 0.15)
 
-    # the line's own speeds from the first step (no cautious out lap)
-    settings = PlannerSettings(method="raceline",
-                               raceline=RacelineSettings(start_speed_scale=1.0))
+    # the line's own speeds from the first step (no cautious out lap, and no wider line
+    # for that full-speed out lap)
+    settings = PlannerSettings(method="raceline", raceline=RacelineSettings(
+        start_speed_scale=1.0, out_lap_margin_m=0.0))
     planner = RacelinePlanner(tr, settings, min_time_loader=loader)
     ((track, car, mt),) = calls
     assert track is tr

@@ -11,6 +11,7 @@ import pytest
 from services.planner import for_pose_source, raceline_request, servo_reach
 from services.planner.mintime.requests import (
     POSE_MARGINS,
+    full_speed_out_lap,
     has_out_lap_line,
     laps_of,
     min_time_settings,
@@ -73,7 +74,8 @@ def test_a_slow_servo_can_race_its_out_lap_on_a_line_with_the_tube_and_fly_witho
         (fly, F1TENTH_GYM),  # no slow servo: no tube at all
         (PlannerSettings(raceline=RacelineSettings(flying_servo_margin_m=None)), car),
         (fly.model_copy(update={"raceline": fly.raceline.model_copy(
-            update={"start_speed_scale": 1.0})}), car),  # no cautious out lap
+            update={"start_speed_scale": 1.0, "out_lap_margin_m": 0.0})}), car),  # no
+        # cautious out lap, and no wider line for a full-speed one
         (fly.model_copy(update={"raceline": fly.raceline.model_copy(
             update={"flying_servo_margin_m": 0.03})}), car),  # the same tube
     ):
@@ -86,6 +88,38 @@ def test_a_slow_servo_can_race_its_out_lap_on_a_line_with_the_tube_and_fly_witho
     assert request_for("raceline", ekf, car).settings.margin_m == pytest.approx(0.02 + extra)
     assert request_for("raceline-out-lap", ekf, car).settings.margin_m == pytest.approx(
         0.05 + extra)
+
+
+def test_a_full_speed_out_lap_races_a_line_with_a_wider_tube() -> None:
+    """``out_lap_margin_m``: a car that races its out lap at its line's speeds (the gym's
+    unbounded ``linear`` tyres, or no cautious start) races it on a line that much wider;
+    a cautious out lap (the gym car's default) keeps one line."""
+    settings = PlannerSettings(raceline=RacelineSettings(min_time_margin_m=0.02,
+                                                         out_lap_margin_m=0.02))
+    linear = F1TENTH_GYM.model_copy(update={"tyre_model": "linear"})
+    assert full_speed_out_lap(settings.raceline, linear)
+    assert not full_speed_out_lap(settings.raceline, F1TENTH_GYM)  # starts at 0.8
+    assert has_out_lap_line(PlannerSettings().raceline, linear)  # on by default (0.02 m)
+    assert laps_of("raceline", settings, linear) == ("raceline", "raceline-out-lap")
+    assert request_for("raceline", settings, linear).settings.margin_m == pytest.approx(0.02)
+    assert request_for("raceline-out-lap", settings, linear).settings.margin_m == (
+        pytest.approx(0.04))
+    assert laps_of("raceline", settings, F1TENTH_GYM) == ("raceline",)
+    # no cautious start: every car's out lap at full speed, a slow servo's with its tube
+    full = settings.raceline.model_copy(update={"start_speed_scale": 1.0})
+    assert full_speed_out_lap(full, F1TENTH_GYM) and full_speed_out_lap(
+        full, REAL_CAR_IDENTIFIED)
+    fast = PlannerSettings(raceline=full)
+    assert request_for("raceline-out-lap", fast, F1TENTH_GYM).settings.margin_m == (
+        pytest.approx(0.04))
+    assert request_for("raceline", fast, REAL_CAR_IDENTIFIED).settings.margin_m == (
+        pytest.approx(0.02 + full.servo_margin_m))
+    assert request_for("raceline-out-lap", fast, REAL_CAR_IDENTIFIED).settings.margin_m == (
+        pytest.approx(0.04 + full.servo_margin_m))
+    # ... and the pose source's tube on top
+    lidar = for_pose_source(settings, "lidar")
+    assert request_for("raceline-out-lap", lidar, linear).settings.margin_m == (
+        pytest.approx(0.04 + settings.raceline.lidar_margin_m))
 
 
 def test_the_out_lap_races_its_own_line_and_hands_over_to_the_flying_line_at_full_scale(
@@ -131,6 +165,62 @@ def test_the_out_lap_races_its_own_line_and_hands_over_to_the_flying_line_at_ful
     gym = RacelinePlanner(circle(3.0, n=300, width=0.6),
                           PlannerSettings(method="raceline", raceline=o), min_time_loader=loader)
     assert asked == [0.02] and gym.raceline is gym.built_line
+
+
+def test_a_full_speed_out_lap_hands_over_where_the_lines_run_together() -> None:
+    """No cautious start: the car races its out lap on the wider line and, past
+    ``out_lap_handover_share`` of it, changes to the flying laps' line only where the two
+    run within 5 mm of each other; after a reset it is on the out lap's line again."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from services.planner.raceline.planner import RacelinePlanner
+    from tests.planner.test_raceline import circle, circle_lap
+
+    def planner_for(bump) -> RacelinePlanner:
+        def loader(track, vehicle, settings):
+            lap = circle_lap(track, 3.0, 3.5, 0.15)
+            if settings.margin_m < 0.03:
+                return lap
+            # the out lap's line: further out by bump(angle) [m]
+            ang = np.arctan2(lap.y_m, lap.x_m)
+            r = np.hypot(lap.x_m, lap.y_m) + bump(ang)
+            return replace(lap, x_m=r * np.cos(ang), y_m=r * np.sin(ang),
+                           v_mps=np.full_like(lap.v_mps, 3.3))
+
+        o = RacelineSettings(min_time_margin_m=0.02, out_lap_margin_m=0.02,
+                             start_speed_scale=1.0, out_lap_handover_share=0.25)
+        return RacelinePlanner(circle(3.0, n=300, width=0.6),
+                               PlannerSettings(method="raceline", raceline=o),
+                               min_time_loader=loader)
+
+    def hand_over_angle(planner: RacelinePlanner) -> float:
+        flying = planner.built_line
+        assert planner.raceline is not flying and planner.speed_scale == 1.0  # full speed
+        assert float(planner.raceline.speed_mps.max()) == pytest.approx(3.3)
+        length = planner.raceline.track.length_m
+        step, k = 0.1, 0
+        while planner.raceline is not flying:
+            assert planner.step(*_rear_axle_at(planner, step * k)).status == "solved"
+            k += 1
+            assert step * k < length
+        return 2.0 * math.pi * step * (k - 1) / length
+
+    # 3 cm apart all round: at once past a quarter of the lap
+    assert 0.5 * math.pi - 0.05 < hand_over_angle(planner_for(lambda a: 0.03 + 0.0 * a)) < (
+        0.5 * math.pi + 0.05)
+    # up to 3 cm apart over the first half of the circle: past a quarter of the lap, on to
+    # where they meet (from about pi - 0.25 rad: 3 sin^2 under 0.5 cm over 0.5 m either side)
+    planner = planner_for(lambda a: 0.03 * np.maximum(np.sin(a), 0.0) ** 2)
+    flying = planner.built_line
+    assert math.pi - 0.35 < hand_over_angle(planner) < math.pi + 0.05
+    # the out lap's ticks were learnt from for the flying laps' line, at the same places
+    seen = planner.learning._count > 0
+    assert seen[: int(0.4 * seen.size)].all() and not seen[int(0.6 * seen.size):].any()
+    planner.reset()
+    assert planner.raceline is not flying and float(planner.raceline.speed_mps.max()) == (
+        pytest.approx(3.3))
 
 
 def test_the_line_steers_within_the_car_s_lock_or_the_planner_s_bounds() -> None:

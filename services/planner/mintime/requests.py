@@ -21,9 +21,12 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
   the margin widened for a slow servo (``servo_margin_m``) and, through
   ``for_pose_source``, for the pose source (``truth_margin_m``, ``ekf_margin_m``,
   ``lidar_margin_m``);
-- ``raceline-out-lap``: the raceline's out lap on a line of its own (``has_out_lap_line``: a
-  slow servo, a cautious start and ``flying_servo_margin_m``): the flying laps' line takes
-  ``flying_servo_margin_m`` as the servo's tube, this one ``servo_margin_m``.
+- ``raceline-out-lap``: the raceline's out lap on a line of its own (``has_out_lap_line``):
+  a car with a slow servo, a cautious start and ``flying_servo_margin_m`` (the flying laps'
+  line takes ``flying_servo_margin_m`` as the servo's tube, this one ``servo_margin_m``);
+  or a car that races its out lap at full speed (``full_speed_out_lap``: no cautious start,
+  or the gym's unbounded ``linear`` tyres) with ``out_lap_margin_m`` (this line that much
+  wider a tube).
 
 ``laps_of(method, settings)`` says which of them a planner method needs. Pure functions:
 no I/O, no solve.
@@ -86,16 +89,32 @@ def planning_vehicle(
     )
 
 
-def has_out_lap_line(settings: RacelineSettings, car: DynamicVehicleParams | None = None
-                     ) -> bool:
-    """Whether the raceline races its out lap on a line of its own (``OUT_LAP``): `car`
-    (None: the gym's) has a slow servo (``mintime.model.servo_reach``), the run starts
-    cautiously (``start_speed_scale`` < 1) and ``flying_servo_margin_m`` gives the flying
-    laps' line another servo tube than ``servo_margin_m``."""
+def full_speed_out_lap(settings: RacelineSettings, car: DynamicVehicleParams | None = None
+                       ) -> bool:
+    """Whether `car` (None: the gym's) races its out lap at its line's speeds: no cautious
+    start (``start_speed_scale`` 1), or the gym's unbounded ``linear`` tyres, whose line
+    drifts through bends tighter than the lock turns the car and so is not driven slower
+    (``RacelinePlanner.drivable_slower``)."""
+    return settings.start_speed_scale >= 1.0 or (car or F1TENTH_GYM).tyre_model == "linear"
+
+
+def _servo_out_lap(settings: RacelineSettings, car: DynamicVehicleParams | None) -> bool:
+    """A slow servo's cautious out lap on the servo's whole tube (``has_out_lap_line``)."""
     return (settings.flying_servo_margin_m is not None
             and settings.flying_servo_margin_m != settings.servo_margin_m
             and settings.start_speed_scale < 1.0
             and servo_reach(car or F1TENTH_GYM) is not None)
+
+
+def has_out_lap_line(settings: RacelineSettings, car: DynamicVehicleParams | None = None
+                     ) -> bool:
+    """Whether the raceline races its out lap on a line of its own (``OUT_LAP``): either
+    `car` (None: the gym's) has a slow servo (``mintime.model.servo_reach``), the run starts
+    cautiously (``start_speed_scale`` < 1) and ``flying_servo_margin_m`` gives the flying
+    laps' line another servo tube than ``servo_margin_m``; or the car races its out lap at
+    full speed (``full_speed_out_lap``) and ``out_lap_margin_m`` widens that lap's tube."""
+    return _servo_out_lap(settings, car) or (
+        settings.out_lap_margin_m > 0.0 and full_speed_out_lap(settings, car))
 
 
 def min_time_settings(
@@ -109,14 +128,17 @@ def min_time_settings(
     outside the line where a bend begins), plus the pose source's tube when the settings
     come through ``for_pose_source``. With an out lap's line of its own
     (``has_out_lap_line``) the servo's tube is ``flying_servo_margin_m`` but for that line
-    (`out_lap`)."""
+    (`out_lap`), and a full-speed out lap's line (``full_speed_out_lap``) takes
+    ``out_lap_margin_m`` more."""
     margin = settings.min_time_margin_m
     if servo_reach(car or F1TENTH_GYM) is not None:
         flying = settings.flying_servo_margin_m
-        if has_out_lap_line(settings, car) and not out_lap and flying is not None:
+        if _servo_out_lap(settings, car) and not out_lap and flying is not None:
             margin += flying
         else:
             margin += settings.servo_margin_m
+    if out_lap and full_speed_out_lap(settings, car):
+        margin += settings.out_lap_margin_m
     return MinTimeSettings(
         v_max_mps=settings.v_max_mps,
         ds_m=settings.ds_m,

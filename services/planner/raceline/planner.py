@@ -17,7 +17,9 @@ tracker (Becker et al. 2023). Ours, built once per track (``[planner.raceline] l
   settings by the tools (``mintime.store.ensure_artefacts``), then read from the cache. A
   car with a slow servo may race its cautious out lap on a second such lap planned with
   the servo's tube and its flying laps on one without (``flying_servo_margin_m``,
-  ``mintime.requests.has_out_lap_line``).
+  ``mintime.requests.has_out_lap_line``); a car that races its out lap at full speed (the
+  gym's ``linear`` tyres) races it on one with ``out_lap_margin_m`` more tube and changes
+  lines past ``out_lap_handover_share`` of it, where the two run together.
 - ``"min_curvature"``: the line of least curvature (``min_curvature_offsets``): the
   centreline resampled every ``ds_m``, each point moved along its left normal by
   ``alpha_i``; minimise the integral of the squared curvature of the moved points,
@@ -60,6 +62,7 @@ from services.planner.mintime.model import reserve_ramp, servo_reach
 from services.planner.mintime.ocp import MinTimeError, MinTimeLap, MinTimeSettings
 from services.planner.mintime.requests import (
     OUT_LAP,
+    full_speed_out_lap,
     has_out_lap_line,
     min_time_settings,
     planning_vehicle,
@@ -122,6 +125,12 @@ class RacelineError(TrackError):
 #: slow servo its lag is inverted instead, from the pure delays (compute 2 + actuation 10
 #: + steering 20 ms).
 SERVO_ALLOWANCE_S = 0.028
+#: A full-speed out lap changes to the flying laps' line where the two run within this
+#: [m] of each other over this [m] either side, and before this share of the line at the
+#: latest (``RacelinePlanner._hand_over_travel_m``).
+HANDOVER_GAP_M = 0.005
+HANDOVER_WINDOW_M = 0.5
+HANDOVER_LAST_SHARE = 0.9
 #: Tyres whose force falls past the peak (``recovery.ramps_from_rest``): the car joins the
 #: line (the start, after a recovery) at most this fast [m/s] until it is this close to it
 #: [m], then the hand-over ramps it up: joining at racing speed from 0.4 m off the line
@@ -644,7 +653,15 @@ class RacelinePlanner:
         self.speed_scale = o.start_speed_scale if cautious else 1.0
         #: the cautious out lap (``_cautious_start``): "hold", "rise" or None (over)
         self._start_phase: str | None = "hold" if cautious else None
-        if cautious and self._out_lap is not None:  # on the out lap's own line
+        #: the out lap at the line's speeds (no cautious start), or one whose line is a
+        #: full-speed out lap's (``full_speed_out_lap``: the gym's linear tyres, whose line
+        #: may be gentle enough to drive slower): on its own line it hands over where the
+        #: lines run together (``_hand_over_out_lap``; a cautious start may hand over first,
+        #: where its scale reaches 1: gen-1028's rose to 1 only in the second flying lap)
+        self._full_speed_out_lap = not cautious or full_speed_out_lap(o, self.vehicle)
+        self._hand_over_at_m: float | None = None  #: how far it drives before [m]
+        if self._out_lap is not None:  # on the out lap's own line: the cautious start
+            # hands over where it ends, a full-speed out lap where the lines run together
             self._follow(self._out_lap[0], 1.0, self._out_lap[1])
         self._start_travel_m = 0.0  #: the line's length driven since the start [m]
         self._grip_shown = 0.0  #: the lateral acceleration held on the line [m/s^2]
@@ -945,7 +962,10 @@ class RacelinePlanner:
                                   speed_scale=self.tracker_scale, offset_slope=slope,
                                   speed_mps=self._travel_mps)
         self._s_line = tc.s_m
+        self._count_travel(tc.s_m)
         self._cautious_start(tc.s_m)
+        if plan is FREE and self._join is None and self._offset == 0.0:
+            self._hand_over_out_lap(tc.s_m)
         yaw_error = self._yaw_error(tc.s_m)
         if self._start_phase is not None and plan is FREE and self._offset == 0.0:
             self._show_grip(tc.s_m)
@@ -980,7 +1000,9 @@ class RacelinePlanner:
         line_speed = tc.speed_mps / self.tracker_scale
         slow = speed < min(line_speed, self._speed_lim[1]) - SLOW_SPEED_MPS
         if (self.options.steering_learning_gain > 0.0 and plan is FREE and not slow
-                and self.speed_scale >= 1.0 and self.raceline is self.built_line
+                and self.speed_scale >= 1.0
+                and (self.raceline is self.built_line
+                     or (self._on_out_lap_line and self._full_speed_out_lap))
                 and self._join is None and self._offset == 0.0 and not self._joining
                 and not self._handover.active):
             # on the line at its speeds, with the grip it was planned for: the correction
@@ -1019,10 +1041,17 @@ class RacelinePlanner:
         v_k = self.options.k_lateral_speed_mps
         if v_k is not None and v_d > v_k + 1e-6:
             return 0.0
-        self.learning.context((id(ref), self.tracker_scale, self.tracker.timing))
+        s_d = tc.steer_s_m
+        if self.raceline is not self.built_line:  # a full-speed out lap on its own line
+            # (``_hand_over_out_lap``), within a few centimetres of the flying laps' one:
+            # learnt for that line at the same place (its stations scaled by the lengths),
+            # so the first flying lap has the whole out lap's correction, not half of it
+            s_d *= self.built_line.track.length_m / self.raceline.track.length_m
+        self.learning.context((id(self.built_line.reference), self.tracker_scale,
+                               self.tracker.timing))
         lead = v_d * self.options.steering_learning_lead_s
-        self.learning.record(tc.steer_s_m - lead, tc.feedback_rad, v_d * self.settings.dt_s)
-        return self.learning.correction(tc.steer_s_m)
+        self.learning.record(s_d - lead, tc.feedback_rad, v_d * self.settings.dt_s)
+        return self.learning.correction(s_d)
 
     @property
     def replanning(self) -> bool:
@@ -1144,6 +1173,65 @@ class RacelinePlanner:
         wheelbase = self.vehicle.lf_m + self.vehicle.lr_m
         return math.tan(min(-self._delta_lim[0], self._delta_lim[1])) / wheelbase
 
+    def _count_travel(self, s_line_m: float) -> None:
+        """The line's length driven since the start (``_start_travel_m``, [m]): the forward
+        progress from the last tick's station to `s_line_m` [m] (wrapped)."""
+        length = self.raceline.track.length_m
+        if (self._start_s is None and self._hand_over_at_m is None
+                and self._full_speed_out_lap and self._on_out_lap_line):
+            self._hand_over_at_m = self._hand_over_travel_m(s_line_m)
+        if self._start_s is not None:
+            self._start_travel_m += max(
+                0.0, (s_line_m - self._start_s + 0.5 * length) % length - 0.5 * length)
+        self._start_s = s_line_m
+
+    @property
+    def _on_out_lap_line(self) -> bool:
+        """The car races the out lap's own line (``_out_lap``)."""
+        return self._out_lap is not None and self.raceline is self._out_lap[0]
+
+    def _hand_over_out_lap(self, s_line_m: float) -> None:
+        """A full-speed out lap on a line of its own (``[planner.raceline]
+        out_lap_margin_m``, no cautious start): the flying laps' line from the next tick
+        once the car has driven to the hand-over (``_hand_over_travel_m``, planned in the
+        first tick, ``_count_travel``) and is on its line (no join, no offset, no car
+        around: the caller's), at the out lap line's station `s_line_m` [m]. A cautious
+        start hands over where its scale reaches 1 (``_cautious_start``)."""
+        if not (self._full_speed_out_lap and self._on_out_lap_line
+                and self._hand_over_at_m is not None):
+            return
+        if self._start_travel_m >= self._hand_over_at_m:
+            self._follow(self.built_line, 1.0, self._built_slow_plans)
+
+    def _hand_over_travel_m(self, s0_m: float) -> float:
+        """How far [m] a full-speed out lap from the out lap line's station `s0_m` [m]
+        drives before it changes lines: to the first station past
+        ``out_lap_handover_share`` of the line where the two lines run within
+        ``HANDOVER_GAP_M`` of each other over ``HANDOVER_WINDOW_M`` either side, or, where
+        they never do before ``HANDOVER_LAST_SHARE`` of it, within that of the nearest
+        they come there (a line one tube wider all round: at once)."""
+        length = self._out_lap[0].track.length_m
+        s_k, worst = self._out_lap_gaps
+        ahead = (s_k - s0_m) % length
+        first = self.options.out_lap_handover_share * length
+        window = (ahead >= first) & (ahead <= max(first, HANDOVER_LAST_SHARE * length))
+        if not np.any(window):
+            return first
+        ok = window & (worst <= max(HANDOVER_GAP_M, float(worst[window].min()) + HANDOVER_GAP_M))
+        return float(ahead[ok].min())
+
+    @cached_property
+    def _out_lap_gaps(self) -> tuple[np.ndarray, np.ndarray]:
+        """(stations (n,) [m] of the out lap's line, the largest distance [m] of the flying
+        laps' line from it over ``HANDOVER_WINDOW_M`` either side of each (n,))."""
+        out = self._out_lap[0].track
+        _, e = self.built_line.track.project(out.xy)
+        gap = np.abs(np.asarray(e, dtype=float))
+        worst = gap.copy()
+        for k in range(1, round(HANDOVER_WINDOW_M / out.spacing_m) + 1):  # (periodic)
+            worst = np.maximum(worst, np.maximum(np.roll(gap, k), np.roll(gap, -k)))
+        return np.asarray(out.s_m, dtype=float), worst
+
     def _cautious_start(self, s_line_m: float) -> None:
         """The cautious out lap (``[planner.raceline] start_speed_scale``): the speed scale
         held at the start's over ``start_hold_share`` of the line, then raised by
@@ -1154,10 +1242,6 @@ class RacelinePlanner:
             return
         o = self.options
         length = self.raceline.track.length_m
-        if self._start_s is not None:  # forward progress along the line (wrapped)
-            self._start_travel_m += max(
-                0.0, (s_line_m - self._start_s + 0.5 * length) % length - 0.5 * length)
-        self._start_s = s_line_m
         if self._start_phase == "hold":
             if self._start_travel_m >= o.start_hold_share * length:
                 self._start_phase = "rise"
