@@ -17,6 +17,8 @@ The matrix (``--tracks``, ``--cars``, ``--poses`` narrow it):
   Pacejka tyres, the planners told its car) and ``identified-on-default`` (the simulator races
   the identified car, the planners keep the default car: a model mismatch);
   ``linear-on-default`` (the world linear, the planners on the default car) on request;
+  ``varied:SEED`` (a seeded variant of the identified car's tyres, servo and speed loop, the
+  planners told it: ``car_family.varied_car``; seeds 1001-... to tune on, 1-... to measure);
 - pose: ``truth``, ``ekf``, ``lidar`` (``services.tools.bench.estimation``);
 - methods: the near-limit methods (cimpcc-line, raceline) unless ``--methods`` names others
   of the registry (a bench variant races its base method with the configuration's settings).
@@ -95,7 +97,13 @@ from shared.config import RacestackConfig, config_from_dict
 from shared.config.methods import CIMPCC, CIMPCC_LINE, METHODS, RACELINE
 from shared.config.vehicle import DynamicVehicleParams
 from shared.evaluation import MethodRun, results_document, write_results
-from shared.evaluation.car_family import CARS, DEFAULT_CARS  # the family, one definition
+from shared.evaluation.car_family import (  # the family, one definition
+    CARS,
+    DEFAULT_CARS,
+    UnknownCarError,
+    car_names,
+    car_spec,
+)
 from shared.evaluation.spins import (
     SPIN_MIN_DURATION_S,
     SPIN_SLIP_FACTOR,
@@ -218,7 +226,7 @@ def config_for(car: str, v_max_mps: float | None = None, ds_m: float | None = No
     """The validated configuration of `car` (``CARS``) at cap `v_max_mps` (None: 4.18),
     the raceline's line on grid `ds_m` (None: its own), with the tables `extra` (``--config``,
     e.g. ``[planner.raceline]`` settings) over all of them."""
-    tables = _merge(_merge(CARS[car].tables, cap_overlay(v_max_mps)), grid_overlay(ds_m))
+    tables = _merge(_merge(car_spec(car).tables, cap_overlay(v_max_mps)), grid_overlay(ds_m))
     return config_from_dict(_merge(tables, extra or {}))
 
 
@@ -472,7 +480,7 @@ def run_cell(
         "track_spec": cell.track,
         "track_length_m": round(track.length_m, 2),
         "car": cell.car,
-        "knows_car": CARS[cell.car].knows_car,
+        "knows_car": car_spec(cell.car).knows_car,
         "pose": cell.pose,
         "limit_s": None if ref is None else ref["min_time_lap_s"],
         "v_max_mps": None if ref is None else ref["v_max_mps"],
@@ -751,7 +759,7 @@ def report(cells: list[dict[str, Any]], matrix: Matrix, timings: dict[str, float
         f"robustness matrix: {len(matrix.tracks)} tracks x {len(matrix.cars)} cars x "
         f"{len(matrix.poses)} poses, methods {', '.join(matrix.methods)}, {matrix.laps} flying "
         f"laps, cap {cap}{grid}{over}",
-        "cars: " + "; ".join(f"{c} = {CARS[c].summary}" for c in matrix.cars),
+        "cars: " + "; ".join(f"{c} = {car_spec(c).summary}" for c in matrix.cars),
         "",
         format_table(cells, matrix.methods),
         "",
@@ -774,7 +782,7 @@ def report(cells: list[dict[str, Any]], matrix: Matrix, timings: dict[str, float
         "summary": summary,
         "cells": cells,
         "meta": {"wall_time_s": {k: round(v, 1) for k, v in timings.items()},
-                 "wall_by_kind": kinds, "cars": {c: asdict(CARS[c]) for c in matrix.cars}},
+                 "wall_by_kind": kinds, "cars": {c: asdict(car_spec(c)) for c in matrix.cars}},
     }
     return doc, "\n".join(lines)
 
@@ -880,7 +888,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="comma list of groups (all, builtin, f1tenth, generated), map416 or "
                     "track specs (default all)")
     ap.add_argument("--cars", default=None,
-                    help=f"comma list of {', '.join(CARS)} (default {','.join(DEFAULT_CARS)})")
+                    help=f"comma list of {', '.join(CARS)} or varied:SEED (a seeded variant "
+                    f"of the identified car; default {','.join(DEFAULT_CARS)})")
     ap.add_argument("--poses", default=None,
                     help=f"comma list of {', '.join(ESTIMATORS)} (default all)")
     ap.add_argument("--methods", default=",".join(NEAR_LIMIT_METHODS),
@@ -912,8 +921,10 @@ def matrix_from_args(args: argparse.Namespace) -> Matrix:
     tracks_dir = Path(args.tracks_dir)
     tracks = resolve_tracks(args.tracks or (",".join(QUICK_TRACKS) if args.quick else "all"),
                             tracks_dir)
-    cars = _names(args.cars or ",".join(QUICK_CARS if args.quick else DEFAULT_CARS), CARS,
-                  "car")
+    try:
+        cars = car_names(args.cars or ",".join(QUICK_CARS if args.quick else DEFAULT_CARS))
+    except UnknownCarError as exc:
+        raise BenchError(str(exc)) from None
     poses = _names(args.poses or ",".join(QUICK_POSES if args.quick else ESTIMATORS),
                    ESTIMATORS, "pose")
     methods = parse_methods(args.methods)

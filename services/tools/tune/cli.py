@@ -76,8 +76,8 @@ def build_parser(ap: argparse.ArgumentParser | None = None) -> argparse.Argument
                     help="comma list of track specs to tune over, the family's tracks "
                     "(default: --track alone)")
     ap.add_argument("--cars", default="default",
-                    help=f"comma list of cars to tune over, of {', '.join(CARS)} (as the "
-                    "robustness benchmark's; default default)")
+                    help=f"comma list of cars to tune over, of {', '.join(CARS)} or "
+                    "varied:SEED (as the robustness benchmark's; default default)")
     ap.add_argument("--aggregate", choices=AGGREGATES, default="worst",
                     help="with several cells (tracks x cars), the objective is the worst or "
                     "the mean ratio of a cell's mean lap to its minimum-time lap (default "

@@ -30,7 +30,7 @@ from services.tools.tune.search import (
     family_score,
 )
 from shared.config import RacestackConfig, config_from_dict
-from shared.evaluation.car_family import CARS
+from shared.evaluation.car_family import car_spec
 from shared.track import Track
 
 
@@ -50,7 +50,7 @@ class FamilyCell:
 
 def cell_data(base_data: dict[str, Any], car: str) -> dict[str, Any]:
     """The base configuration (TOML tables) with car `car`'s tables laid over it."""
-    return deep_merge(base_data, CARS[car].tables)
+    return deep_merge(base_data, car_spec(car).tables)
 
 
 def cell_config(base_data: dict[str, Any], car: str) -> RacestackConfig:

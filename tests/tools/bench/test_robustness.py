@@ -260,6 +260,15 @@ def test_the_cars_of_the_matrix() -> None:
     assert mismatch.simulates_another_car
     assert mismatch.vehicle == F1TENTH_GYM
     assert mismatch.simulator.vehicle.tyre_model == "pacejka"
+    # a seeded variant of the identified car, the planners told it
+    varied = rb.config_for("varied:3")
+    assert varied.vehicle.tyre_model == "pacejka" and not varied.simulates_another_car
+    assert varied.vehicle.pacejka_front != told.vehicle.pacejka_front
+    args = rb.build_parser().parse_args(["--tracks", "paperlike", "--cars", "varied:3,default"])
+    assert rb.matrix_from_args(args).cars == ("varied:3", "default")
+    with pytest.raises(rb.BenchError, match="varied:SEED"):
+        rb.matrix_from_args(rb.build_parser().parse_args(["--tracks", "paperlike",
+                                                          "--cars", "varied:x"]))
 
 
 def test_the_matrix_and_its_laps(tmp_path: Path) -> None:
