@@ -122,6 +122,28 @@ def test_a_full_speed_out_lap_races_a_line_with_a_wider_tube() -> None:
         pytest.approx(0.04 + settings.raceline.lidar_margin_m))
 
 
+def test_an_out_lap_line_that_cannot_be_had_leaves_the_flying_line_for_the_whole_race(
+) -> None:
+    """Its wider tube finds no lap on a narrow track (or it was never made): the planner
+    races the out lap on the flying laps' line and says why, instead of failing."""
+    from services.planner.mintime.ocp import MinTimeError
+    from services.planner.raceline.planner import RacelinePlanner
+    from tests.planner.test_raceline import circle, circle_lap
+
+    def loader(track, vehicle, settings):
+        if settings.margin_m > 0.04:
+            raise MinTimeError("circle", "no feasible lap (IPOPT: Infeasible_Problem_Detected)")
+        return circle_lap(track, 3.0, 3.5, 0.15)
+
+    o = RacelineSettings(min_time_margin_m=0.02, servo_margin_m=0.03, flying_servo_margin_m=0.0)
+    planner = RacelinePlanner(circle(3.0, n=300, width=0.6),
+                              PlannerSettings(method="raceline", raceline=o),
+                              vehicle=REAL_CAR_IDENTIFIED, min_time_loader=loader)
+    assert planner.raceline is planner.built_line
+    assert "Infeasible" in planner.out_lap_error
+    assert planner.step(*_rear_axle_at(planner, 0.3)).status == "solved"
+
+
 def test_the_out_lap_races_its_own_line_and_hands_over_to_the_flying_line_at_full_scale(
 ) -> None:
     """The planner loads both lines, races the out lap's while the cautious start holds the

@@ -567,13 +567,22 @@ class RacelinePlanner:
         #: holds the car below its line; ``_cautious_start`` hands over to the built line);
         #: None: the out lap races the built line
         self._out_lap: tuple[Raceline, tuple[ReferenceLap, ...]] | None = None
+        #: why the out lap races the flying laps' line though it has one of its own (its
+        #: wider tube infeasible on a narrow track, or never made); None: it does not
+        self.out_lap_error: str | None = None
         if (raceline is None and self.line_share == 1.0 and settings.raceline.line == "min_time"
                 and has_out_lap_line(settings.raceline, self.vehicle)):
-            out = build_min_time_raceline(
-                track, settings.raceline, self.vehicle,
-                raceline_steering_limits(settings, self.vehicle), min_time_loader, out_lap=True)
-            self._out_lap = (out, slower_plans(out.reference, self.vehicle)[1])
-            out.track.prepare_projection()
+            try:
+                out = build_min_time_raceline(
+                    track, settings.raceline, self.vehicle,
+                    raceline_steering_limits(settings, self.vehicle), min_time_loader,
+                    out_lap=True)
+            except (MinTimeError, RacelineError) as exc:  # the flying line throughout, as before
+                # (a slow servo's 5.3 cm tube found no lap on gen-2 for varied:5)
+                self.out_lap_error = str(exc)
+            else:
+                self._out_lap = (out, slower_plans(out.reference, self.vehicle)[1])
+                out.track.prepare_projection()
         #: the grip re-plan under way (``_replan_for_grip``), a slice per tick
         self._grip_job: GripReplan | None = None
         #: node steps of grip re-plan work done so far (every job, every run): a tick that
