@@ -254,6 +254,21 @@ class RacelineSettings(Section):
         "its friction ellipse (room for the speed loop's corrections); no effect on other "
         "tyres",
     )
+    min_time_oversteer_balance: float = Field(
+        0.9, ge=0.0, le=1.0,
+        description="min_time, Pacejka tyres: a car whose rear peak friction (mu D) is below "
+        "this share of its front's oversteers at the limit, and its rear keeps "
+        "min_time_oversteer_rear_share of the ellipse share (a rear at its ellipse has "
+        "nothing left for the yaw moment of a front with grip to spare: every such car of the "
+        "varied family spun; the identified car's is 0.95); 0: never [1]",
+    )
+    min_time_oversteer_rear_share: float = Field(
+        0.9, ge=0.1, le=1.0,
+        description="min_time, Pacejka tyres, an oversteering car (min_time_oversteer_balance)"
+        ": its rear axle's force stays within this share of min_time_ellipse_fraction (tuned "
+        "on varied:1001-1006 x gen:1001-1003: 0.95 and 0.93 still spun 4 and 3 of 18 cells, "
+        "0.9 none) [1]",
+    )
     min_time_reserve_speed_mps: float | None = Field(
         4.18, gt=0.0, le=20.0,
         description="min_time, friction-limited tyres: above this speed [m/s] each axle keeps "

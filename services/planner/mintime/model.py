@@ -98,6 +98,8 @@ class SpatialModel:
         rear_reserve_fraction: the rear axle's share of its ellipse's radius at speed
             with the reserve (a saturated rear spins the car, a saturated front pushes it
             wide), or None: the reserve's ``f_r`` for both axles.
+        rear_ellipse_use_max: the rear axle's own bound on its ``tyres`` use [-]
+            (``MinTimeSettings.rear_ellipse_fraction ** 2``), or None: ``ellipse_use_max``.
     """
 
     ode: ca.Function
@@ -111,22 +113,30 @@ class SpatialModel:
     reserve: tuple[float, float, float] | None = None
     yaw_stability: ca.Function | None = None
     rear_reserve_fraction: float | None = None
+    rear_ellipse_use_max: float | None = None
+
+    def axle_use_max(self, rear: bool = False) -> float:
+        """The front (`rear`: the rear) axle's bound on its ellipse use [-] below any
+        high-speed reserve: ``ellipse_use_max``, or the rear's own ``rear_ellipse_use_max``."""
+        if rear and self.rear_ellipse_use_max is not None:
+            return self.rear_ellipse_use_max
+        return self.ellipse_use_max
 
     def use_bound(
         self, v_mps: ca.MX | ca.SX | float, rear: bool = False
     ) -> ca.MX | ca.SX | float:
         """Bound on the front (`rear`: the rear) axle's ellipse use [-] at speed `v_mps`
-        [m/s]: ``ellipse_use_max``, times ``1 - (1 - f_r^2) S((v - v_r) / w)`` with the
+        [m/s]: ``axle_use_max(rear)``, times ``1 - (1 - f_r^2) S((v - v_r) / w)`` with the
         reserve (``S`` the smoothstep ``3 x^2 - 2 x^3`` of x clipped to [0, 1]: 1 up to
         ``v_r``, ``f_r^2`` from ``v_r + w`` on; ``f_r`` the rear's own share for the rear
         when ``rear_reserve_fraction`` is set)."""
         if self.reserve is None:
-            return self.ellipse_use_max
+            return self.axle_use_max(rear)
         v_r, width, f_r = self.reserve
         if rear and self.rear_reserve_fraction is not None:
             f_r = self.rear_reserve_fraction
         ramp = reserve_ramp(v_mps, v_r, width)
-        return self.ellipse_use_max * (1.0 - (1.0 - f_r * f_r) * ramp)
+        return self.axle_use_max(rear) * (1.0 - (1.0 - f_r * f_r) * ramp)
 
 
 def reserve_ramp(
@@ -154,13 +164,15 @@ def spatial_model(
     reserve: tuple[float, float, float] | None = None,
     yaw_pole_per_s: float | None = None,
     rear_reserve_fraction: float | None = None,
+    rear_ellipse_fraction: float | None = None,
 ) -> SpatialModel:
     """The functions of `p`'s car along a reference (module docstring); Pacejka tyres keep
     their slip within `slip_fraction` of the peak slip and their force within
     `ellipse_fraction` of the ellipse, and any friction-limited tyre the high-speed
     `reserve` ``(v_r [m/s], w [m/s], f_r [-])`` (``MinTimeSettings``; None: none) and, with
     it, the yaw's divergence under braking within `yaw_pole_per_s` [1/s] (None: none) and
-    the rear's own share `rear_reserve_fraction` (None: the reserve's)."""
+    the rear's own share `rear_reserve_fraction` (None: the reserve's); Pacejka tyres' rear
+    within `rear_ellipse_fraction` of its ellipse (None: `ellipse_fraction`)."""
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
     kappa = ca.SX.sym("kappa")
@@ -221,6 +233,8 @@ def spatial_model(
     if p.tyre_model == "pacejka":  # its F_y,max = sqrt((mu F_z)^2 - F_x^2) is steep at 0
         a_lim = min(a_lim, (1.0 - PACEJKA_ACCEL_BACKOFF) * min(mu_f, mu_r) * GRAVITY_MPS2)
     use_max = ellipse_fraction**2 if p.tyre_model == "pacejka" else 1.0
+    rear_use_max = (rear_ellipse_fraction**2
+                    if p.tyre_model == "pacejka" and rear_ellipse_fraction is not None else None)
     yaw = None
     if limited and reserve is not None and yaw_pole_per_s is not None:
         yaw = ca.Function(
@@ -231,6 +245,7 @@ def spatial_model(
         ode, tyres, footprint, limited, peak, a_lim, servo_reach(p), use_max,
         reserve if limited else None, yaw,
         rear_reserve_fraction if limited and reserve is not None else None,
+        rear_use_max,
     )
 
 

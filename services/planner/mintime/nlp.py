@@ -237,7 +237,7 @@ def transcribe(
     if m.friction_limited and m.reserve is None:
         g_parts.append(ca.vec(tyres[0:2, :]))
         lbg.append(np.full(2 * n_path, -np.inf))
-        ubg.append(np.full(2 * n_path, m.ellipse_use_max))
+        ubg.append(np.tile([m.axle_use_max(), m.axle_use_max(rear=True)], n_path))
     elif m.friction_limited:  # the high-speed reserve: the bound falls with the speed
         bounds = ca.vertcat(m.use_bound(path_x[V, :]), m.use_bound(path_x[V, :], rear=True))
         g_parts.append(ca.vec(tyres[0:2, :] - bounds))

@@ -144,6 +144,11 @@ class MinTimeSettings:
         reserve_rear_fraction: with the reserve, the rear axle's own share of its
             ellipse's radius (a saturated rear spins the car; a saturated front pushes it
             wide, which the tracker's outward cut catches); None: ``reserve_fraction``.
+        rear_ellipse_fraction: Pacejka tyres: the rear axle's own share of its friction
+            ellipse's radius at every speed (``requests.rear_ellipse_fraction``: a car whose
+            rear grips less than its front oversteers at the limit, and a rear at its ellipse
+            has nothing left for the yaw moment a front with grip to spare puts on it);
+            None: ``ellipse_fraction``. No effect on other tyres.
     """
 
     v_max_mps: float = 4.18
@@ -162,6 +167,7 @@ class MinTimeSettings:
     reserve_yaw_pole_per_s: float | None = None
     reserve_rear_fraction: float | None = None
     reserve_from_mps: float | None = None
+    rear_ellipse_fraction: float | None = None
 
     @property
     def reserve_active(self) -> bool:
@@ -200,6 +206,8 @@ class MinTimeSettings:
             checks += (("reserve_from_mps", lambda v: 0.0 <= v <= 100.0, "in [0, 100] m/s"),)
         if self.reserve_rear_fraction is not None:
             checks += (("reserve_rear_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),)
+        if self.rear_ellipse_fraction is not None:
+            checks += (("rear_ellipse_fraction", lambda v: 0.1 <= v <= 1.0, "in [0.1, 1]"),)
         if self.reserve_yaw_pole_per_s is not None:
             checks += (("reserve_yaw_pole_per_s", lambda v: 0.0 <= v <= 100.0,
                         "in [0, 100] 1/s"),)
@@ -329,7 +337,8 @@ def solve_min_time(
         else None
     )
     model = spatial_model(vehicle, cfg.slip_fraction, cfg.ellipse_fraction, reserve,
-                          cfg.reserve_yaw_pole_per_s, cfg.reserve_rear_fraction)
+                          cfg.reserve_yaw_pole_per_s, cfg.reserve_rear_fraction,
+                          cfg.rear_ellipse_fraction)
     steering = (
         (cfg.reserve_start_mps, cfg.reserve_width_mps, cfg.reserve_steering_weight_s,
          cfg.reserve_margin_m, cfg.reserve_speed_mps)

@@ -17,6 +17,7 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
   ``steering_range`` (the car's own lock, or the planner's bounds; 1: all of it), top speed
   ``v_max_mps``, grid ``ds_m``, margin ``min_time_margin_m`` and the Pacejka reserves
   ``min_time_slip_fraction`` and ``min_time_ellipse_fraction`` of ``[planner.raceline]``
+  (an oversteering car's rear a share of its own: ``rear_ellipse_fraction``)
   and its high-speed reserve (``min_time_reserve_speed_mps``, ``_fraction``, ``_width_mps``);
   the margin widened for a slow servo (``servo_margin_m``) and, through
   ``for_pose_source``, for the pose source (``truth_margin_m``, ``ekf_margin_m``,
@@ -41,6 +42,7 @@ from services.planner.mintime.ocp import MinTimeSettings
 from shared.config.methods import METHODS, method_spec
 from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, DynamicVehicleParams
+from shared.vehicle.tyres import axle_peak_friction
 
 #: The car's limit (the bench's reference, ``racestack mintime``'s default).
 LIMIT = "limit"
@@ -153,7 +155,32 @@ def min_time_settings(
         reserve_yaw_pole_per_s=settings.min_time_reserve_yaw_pole_per_s,
         reserve_rear_fraction=settings.min_time_reserve_rear_fraction,
         reserve_from_mps=settings.min_time_reserve_from_mps,
+        rear_ellipse_fraction=rear_ellipse_fraction(settings, car),
     )
+
+
+
+def rear_ellipse_fraction(
+    settings: RacelineSettings, car: DynamicVehicleParams | None = None
+) -> float | None:
+    """The rear axle's own ellipse share [-] of the raceline's line for `car` (None: the
+    gym's), or None (the rear as the front, ``min_time_ellipse_fraction``).
+
+    A car on Pacejka tyres whose rear peak friction is below ``min_time_oversteer_balance``
+    of its front's oversteers at the limit: in steady cornering each axle uses ``a_y /
+    (mu_i g)`` of its grip, so the rear reaches its ellipse first, while the front still
+    has grip to spare for the yaw moment a tracking error or a braking turn-in puts on it,
+    which a saturated rear cannot answer: the car spins (every such car of the varied
+    family, ``shared.evaluation.car_family``, did once a run). Its rear keeps
+    ``min_time_oversteer_rear_share`` of ``min_time_ellipse_fraction``. A step in the
+    balance, not a ramp: the cars above it race their lines of before."""
+    car = car or F1TENTH_GYM
+    if car.tyre_model != "pacejka" or settings.min_time_oversteer_balance <= 0.0:
+        return None
+    balance = axle_peak_friction(car, "rear") / axle_peak_friction(car, "front")
+    if balance >= settings.min_time_oversteer_balance:
+        return None
+    return settings.min_time_ellipse_fraction * settings.min_time_oversteer_rear_share
 
 
 #: The pose sources of ``for_pose_source`` and their margin keys of ``[planner.raceline]``.

@@ -62,7 +62,8 @@ CONFIG_PLACEHOLDER = "[--config FILE]"
 KEY_FREE_DEFAULTS: dict[str, object] = {"slip_fraction": 1.0, "ellipse_fraction": 1.0,
                                         "reserve_yaw_pole_per_s": None,
                                         "reserve_rear_fraction": None,
-                                        "reserve_from_mps": None}
+                                        "reserve_from_mps": None,
+                                        "rear_ellipse_fraction": None}
 #: The high-speed reserve's settings: in the key only when the reserve acts
 #: (``MinTimeSettings.reserve_active``, a friction-limited tyre), so every lap whose top speed
 #: is at or below its speed (the 4.18 m/s cap's) keeps its key.
@@ -79,7 +80,8 @@ def cache_key(track: Track, vehicle: DynamicVehicleParams, settings: MinTimeSett
     h.update(vehicle.model_dump_json().encode())
     fields = dataclasses.asdict(settings)
     if vehicle.tyre_model != "pacejka":  # the reserves act on Pacejka tyres only
-        fields.update({n: KEY_FREE_DEFAULTS[n] for n in ("slip_fraction", "ellipse_fraction")})
+        fields.update({n: KEY_FREE_DEFAULTS[n]
+                       for n in ("slip_fraction", "ellipse_fraction", "rear_ellipse_fraction")})
     if not settings.reserve_active or vehicle.tyre_model == "linear":
         for name in RESERVE_FIELDS:  # no high-speed reserve: the problem (and key) of before
             del fields[name]
