@@ -159,7 +159,6 @@ def min_time_settings(
     )
 
 
-
 def rear_ellipse_fraction(
     settings: RacelineSettings, car: DynamicVehicleParams | None = None
 ) -> float | None:
