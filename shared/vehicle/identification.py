@@ -99,6 +99,12 @@ their product is): the overlay writes them as fitted, since the product holds. A
 whose friction the run never used up is not identifiable either, but when the curve below
 the peak still tells it (relative sigma within ``IDENTIFIABLE_REL_SIGMA``) the overlay
 writes the fit too, an extrapolation (the base car's neutral guess would be worse).
+A steering rate limit the run does not tell is at least the fastest road-wheel rate the run
+measured (``Estimate.lower_bound``): the overlay writes that rate when it is below the base
+car's limit, so that a car is never planned to steer faster than it has been seen to (the
+gym's 3.2 rad/s kept for a servo that slews at 2.24 planned lines the car could not follow:
+the grippier benchmark car spun in paperlike's S-bend and raced at 1.16 x its limit, 1.02
+told its true rate).
 
 Bad input raises ``SysidError`` with one line naming what is missing (too short, no
 cornering, a signal absent or too sparse).
@@ -220,6 +226,9 @@ class Estimate:
     #: the part of ``sigma`` from the grid's and the timing's floors (module docstring,
     #: "Uncertainty"); the rest, ``sqrt(sigma^2 - sigma_systematic^2)``, is the jackknife's
     sigma_systematic: float = 0.0
+    #: what the run shows the parameter is at least (a limit never reached: the largest
+    #: value measured), in ``unit``; NaN when the run gives no bound
+    lower_bound: float = math.nan
 
 
 def _with_curvature(out: dict[str, Estimate], curv: Mapping[str, float],
@@ -252,7 +261,8 @@ class SysidResult:
     def vehicle_overlay(self, base: DynamicVehicleParams) -> dict[str, Any]:
         """The ``[vehicle]`` fields of the identified car: the identifiable estimates, the
         base car's values for the rest (``tyre_model`` the fitted model); a Pacejka axle's
-        B, C and D all as fitted once any of them is written."""
+        B, C and D all as fitted once any of them is written; a steering rate limit the run
+        does not tell as the fastest rate it saw when that is below the base's."""
         e = {k: v for k, v in self.estimates.items()
              if v.identifiable or v.note.startswith(PRODUCT_ONLY) or _extrapolated_d(v)}
         out: dict[str, Any] = {"tyre_model": self.model}
@@ -262,8 +272,16 @@ class SysidResult:
                      "steering_time_constant_s"):
             if name in e:
                 out[name] = _round(e[name].value)
+        rate_est = self.estimates.get("steering_rate_max_radps")
         if "steering_rate_max_radps" in e:
             rate = _round(e["steering_rate_max_radps"].value)
+            out["steering_rate_max_radps"] = rate
+            out["steering_rate_min_radps"] = -rate
+        elif rate_est is not None and math.isfinite(rate_est.lower_bound) and \
+                rate_est.lower_bound < min(base.steering_rate_max_radps,
+                                           -base.steering_rate_min_radps):
+            # not told, but never seen faster than this: plan no faster than seen
+            rate = _round(rate_est.lower_bound)
             out["steering_rate_max_radps"] = rate
             out["steering_rate_min_radps"] = -rate
         if self.model == "linear":
@@ -597,7 +615,7 @@ def fit_steering(g: Grid, base: DynamicVehicleParams) -> tuple[dict[str, Estimat
             f"never reached: at least {seen:.2f} rad/s seen" if at_limit < 0.005 else
             f"not needed by the data (the fit without it is worse by "
             f"{gain_sse / max(gain_jack, 1e-300):.1f} jackknife sigmas): at least "
-            f"{seen:.2f} rad/s seen")
+            f"{seen:.2f} rad/s seen", lower_bound=seen)
     else:
         out["steering_rate_max_radps"] = _estimate(
             "steering_rate_max_radps", math.exp(lr_), math.exp(lr_) * sr, "rad/s",

@@ -52,3 +52,27 @@ def test_an_axle_s_curve_is_written_whole_once_any_of_it_is() -> None:
     out = res.vehicle_overlay(BASE)
     assert out["pacejka_rear"] == [18.3, 1.6, 0.61, 0.0]
     assert out["pacejka_front"] == [10.0, 1.5, 1.0, 0.373]
+
+
+def _rate(value: float, identifiable: bool, seen: float) -> SysidResult:
+    est = Estimate("steering_rate_max_radps", value, 0.1 if identifiable else math.inf,
+                   identifiable, "rad/s", "" if identifiable else
+                   f"never reached: at least {seen:.2f} rad/s seen",
+                   lower_bound=math.nan if identifiable else seen)
+    return SysidResult("pacejka", {est.name: est}, 60.0, np.zeros(2))
+
+
+def test_a_rate_limit_not_told_is_planned_no_faster_than_seen() -> None:
+    """The grippier benchmark car's servo slews at 2.24 rad/s, which the run saw but could
+    not tell from its lag: the base's 3.2 rad/s would plan steering it cannot follow."""
+    out = _rate(2.27, False, 2.2398).vehicle_overlay(BASE)
+    assert out["steering_rate_max_radps"] == 2.24
+    assert out["steering_rate_min_radps"] == -2.24
+
+
+def test_a_rate_seen_above_the_base_keeps_the_base_and_a_told_rate_is_written() -> None:
+    out = _rate(3.5, False, 3.4).vehicle_overlay(BASE)
+    assert "steering_rate_max_radps" not in out  # the base's 3.2 stays
+    out = _rate(2.5, True, math.nan).vehicle_overlay(BASE)
+    assert out["steering_rate_max_radps"] == 2.5
+    assert out["steering_rate_min_radps"] == -2.5
