@@ -540,8 +540,11 @@ class RacelineSettings(Section):
         "tracker takes it [s] (the F1TENTH gym's car measures within 0.02 s of its own)",
     )
     speed_delay_s: float = Field(
-        0.012, ge=0.0, le=1.0,
-        description="tracker: pose -> speed loop (compute 2 ms + actuation 10 ms) [s]",
+        0.022, ge=0.0, le=1.0,
+        description="tracker: pose -> speed loop [s]: compute 2 ms + actuation 10 ms, which "
+        "the simulator acts from its next integration sub-step (up to 9.6 ms later; the "
+        "bench's loop: 21.2 ms in all). 0.012 left the car 0.04-0.07 m/s behind its line out "
+        "of every slow bend (the identified car on map416: 0.6 % of the lap)",
     )
     steering_delay_s: float = Field(
         0.06, ge=0.0, le=1.0,
