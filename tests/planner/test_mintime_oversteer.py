@@ -12,7 +12,12 @@ import pytest
 import services.planner.mintime.store as store
 from services.planner.mintime.model import spatial_model
 from services.planner.mintime.ocp import MinTimeSettings, solve_min_time
-from services.planner.mintime.requests import raceline_request, rear_ellipse_fraction
+from services.planner.mintime.requests import (
+    line_request,
+    oversteers,
+    raceline_request,
+    rear_ellipse_fraction,
+)
 from shared.config.planner import PlannerSettings, RacelineSettings
 from shared.config.vehicle import F1TENTH_GYM, REAL_CAR_IDENTIFIED
 from shared.vehicle.tyres import axle_peak_friction
@@ -46,6 +51,21 @@ def test_only_a_car_whose_rear_grips_less_than_the_balance_gets_a_rear_share() -
         assert req.rear_ellipse_fraction == rear_ellipse_fraction(o, OVERSTEER)
         assert raceline_request(settings, REAL_CAR_IDENTIFIED,
                                 out_lap=out_lap).settings.rear_ellipse_fraction is None
+
+
+def test_cimpcc_lines_line_gives_an_oversteering_cars_rear_the_same_share() -> None:
+    """``cimpcc-line`` contours a minimum-time line too: an oversteering car's rear keeps
+    the raceline's share of that line's own ellipse (the varied family's tuning cells: 3 ->
+    15 of 18 clean, 135 -> 0 spins; README). Every other car's line is as before."""
+    settings = PlannerSettings()
+    o, line = settings.raceline, settings.cimpcc_line
+    assert oversteers(o, OVERSTEER) and not oversteers(o, REAL_CAR_IDENTIFIED)
+    assert not oversteers(o, F1TENTH_GYM) and not oversteers(o)
+    assert not oversteers(RacelineSettings(min_time_oversteer_balance=0.0), OVERSTEER)
+    assert line_request(settings, OVERSTEER).settings.rear_ellipse_fraction == pytest.approx(
+        line.ellipse_fraction * o.min_time_oversteer_rear_share)
+    for car in (REAL_CAR_IDENTIFIED, F1TENTH_GYM, None):
+        assert line_request(settings, car).settings.rear_ellipse_fraction is None
 
 
 def test_the_other_cars_keep_their_keys_and_bad_shares_are_rejected() -> None:

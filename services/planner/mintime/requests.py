@@ -11,7 +11,8 @@ solved for and its ``MinTimeSettings``; the store keys its artefact on exactly t
   times ``[planner.cimpcc_line] grip_fraction``, its steering within the planner's
   ``[planner.bounds] delta_rad`` (a line the planner cannot steer is no reference), top
   speed ``v_max_mps``, margin ``line_margin_m`` and, with Pacejka tyres, the reserves
-  ``slip_fraction`` and ``ellipse_fraction``;
+  ``slip_fraction`` and ``ellipse_fraction`` (an oversteering car's rear, ``oversteers``,
+  ``[planner.raceline] min_time_oversteer_rear_share`` of that ellipse);
 - ``raceline``: the raceline baseline's line with ``[planner.raceline] line = "min_time"``
   (``raceline_request``): the car's steering within ``min_time_steering_fraction`` of its
   ``steering_range`` (the car's own lock, or the planner's bounds; 1: all of it), top speed
@@ -173,13 +174,20 @@ def rear_ellipse_fraction(
     family, ``shared.evaluation.car_family``, did once a run). Its rear keeps
     ``min_time_oversteer_rear_share`` of ``min_time_ellipse_fraction``. A step in the
     balance, not a ramp: the cars above it race their lines of before."""
-    car = car or F1TENTH_GYM
-    if car.tyre_model != "pacejka" or settings.min_time_oversteer_balance <= 0.0:
-        return None
-    balance = axle_peak_friction(car, "rear") / axle_peak_friction(car, "front")
-    if balance >= settings.min_time_oversteer_balance:
+    if not oversteers(settings, car):
         return None
     return settings.min_time_ellipse_fraction * settings.min_time_oversteer_rear_share
+
+
+def oversteers(settings: RacelineSettings, car: DynamicVehicleParams | None = None) -> bool:
+    """Whether `car` (None: the gym's) oversteers at the limit: Pacejka tyres whose rear
+    peak friction is below ``min_time_oversteer_balance`` of the front's
+    (``rear_ellipse_fraction``)."""
+    car = car or F1TENTH_GYM
+    if car.tyre_model != "pacejka" or settings.min_time_oversteer_balance <= 0.0:
+        return False
+    balance = axle_peak_friction(car, "rear") / axle_peak_friction(car, "front")
+    return balance < settings.min_time_oversteer_balance
 
 
 #: The pose sources of ``for_pose_source`` and their margin keys of ``[planner.raceline]``.
@@ -247,12 +255,18 @@ def line_request(
     settings: PlannerSettings, car: DynamicVehicleParams | None = None
 ) -> LapRequest:
     """The lap ``cimpcc-line`` contours (module docstring) for `car` (None: the F1TENTH
-    gym's, the default ``[vehicle]``) with the planner `settings`."""
+    gym's, the default ``[vehicle]``) with the planner `settings`; an oversteering car's
+    rear keeps the raceline's share (``min_time_oversteer_rear_share``) of this line's
+    ``ellipse_fraction``: without it the varied family's oversteering cars spun 135 times in
+    18 cells."""
     line = settings.cimpcc_line
     lo, hi = settings.bounds.delta_rad
     planned = planning_vehicle(car or F1TENTH_GYM, (lo, hi))
     if line.grip_fraction != 1.0:
         planned = planned.model_copy(update={"mu": planned.mu * line.grip_fraction})
+    rear = None
+    if oversteers(settings.raceline, car):  # the raceline's rear share, on this line's ellipse
+        rear = line.ellipse_fraction * settings.raceline.min_time_oversteer_rear_share
     return LapRequest(
         planned,
         MinTimeSettings(
@@ -260,6 +274,7 @@ def line_request(
             margin_m=line.line_margin_m,
             slip_fraction=line.slip_fraction,
             ellipse_fraction=line.ellipse_fraction,
+            rear_ellipse_fraction=rear,
         ),
     )
 
