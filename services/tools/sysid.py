@@ -130,7 +130,8 @@ def _estimate_doc(e: Estimate) -> dict[str, Any]:
     finite = math.isfinite(e.sigma)
     return {"value": e.value, "sigma": e.sigma if finite else None,
             "sigma_systematic": e.sigma_systematic if finite else None,
-            "identifiable": e.identifiable, "unit": e.unit, "note": e.note}
+            "identifiable": e.identifiable, "unit": e.unit, "note": e.note,
+            "lower_bound": e.lower_bound if math.isfinite(e.lower_bound) else None}
 
 
 def write_outputs(result: SysidResult, base_data: dict[str, Any],

@@ -102,6 +102,16 @@ def test_the_command_writes_a_loadable_car(gym_run: dict, tmp_path: Path, capsys
     assert set(tomllib.loads(raw)) == {"vehicle"}
     doc = json.loads(out.with_suffix(".sysid.json").read_text(encoding="utf-8"))
     assert doc["estimates"]["steering_delay_s"]["identifiable"] is True
+    # a rate limit the run does not tell: its bound in the JSON, and the car planned no
+    # faster than that bound (nor than the base's 3.2 rad/s)
+    rate = doc["estimates"]["steering_rate_max_radps"]
+    if rate["identifiable"]:
+        assert rate["lower_bound"] is None
+    elif rate["lower_bound"] is None:  # told nothing, not even a bound: the base's
+        assert cfg.vehicle.steering_rate_max_radps == 3.2
+    else:
+        assert cfg.vehicle.steering_rate_max_radps == pytest.approx(
+            min(3.2, rate["lower_bound"]), rel=1e-3)
     pytest.importorskip("matplotlib")
     assert out.with_suffix(".png").stat().st_size > 10_000
 
